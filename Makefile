@@ -1,0 +1,24 @@
+# Two commands do all the set-up: `make demo` renders the report's room, `make test` runs the tests.
+VENV   ?= .venv
+PYTHON := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test setup clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml scripts/setup.sh
+	bash scripts/setup.sh $(VENV)
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/tracer render mitsuba_scenes/hexagon_room.xml --output out/hexagon_room.exr \
+		--estimator report --direct 16 --indirect 8 --report-depth 2
+	$(VENV)/bin/tracer render mitsuba_scenes/hexagon_room.xml --output out/hexagon_room_path.exr \
+		--estimator path --spp 64
+
+test: $(STAMP)
+	$(PYTHON) -m pytest -q
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

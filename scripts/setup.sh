@@ -1,0 +1,26 @@
+#!/usr/bin/env bash
+# Installs what the project needs: an LLVM >= 16 runtime for Dr.Jit's CPU backend,
+# then a virtual environment with the package, Mitsuba and the test tools.
+set -euo pipefail
+VENV="${1:-.venv}"
+
+have_llvm() {
+    ldconfig -p 2>/dev/null | grep -Eq 'libLLVM(-|\.so\.)(1[6-9]|[2-9][0-9])'
+}
+
+if ! have_llvm; then
+    if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+        echo "setup: installing libllvm19 (Dr.Jit's CPU backend needs LLVM >= 16)"
+        apt-get update -qq
+        DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null
+    else
+        echo "setup: Dr.Jit's CPU backend needs an LLVM runtime >= 16 (Debian/Ubuntu: apt-get install libllvm19;" \
+             "elsewhere install LLVM 16+ and set DRJIT_LIBLLVM_PATH to its libLLVM.so)" >&2
+        exit 1
+    fi
+fi
+
+python3 -m venv "$VENV"
+"$VENV/bin/pip" install -q --upgrade pip
+"$VENV/bin/pip" install -q -e ".[test]"
+echo "setup: done ($VENV)"
