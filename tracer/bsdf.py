@@ -1,0 +1,52 @@
+"""Surface scattering with Mitsuba's semantics: Lambertian diffuse, perfect mirror, smooth dielectric."""
+import drjit as dr
+
+from .jit import Array3f, Float
+from .sampling import INV_PI
+
+
+def diffuse_brdf(albedo: Array3f) -> Array3f:
+    """Lambertian BRDF f = rho / pi (the f of eq. 10)."""
+    return albedo * INV_PI
+
+
+def reflect(d: Array3f, n: Array3f) -> Array3f:
+    """Mirror direction d - 2 (d.N) N (eq. 5)."""
+    return dr.fma(n, -2.0 * dr.dot(d, n), d)
+
+
+def fresnel_dielectric(cos_i: Float, eta: Float) -> tuple[Float, Float, Float]:
+    """Exact unpolarised Fresnel reflectance for light arriving at cos_i > 0 from the side of index
+    n1 onto index n2, eta = n2 / n1.
+
+    Returns (F, cos_t, R) with R = n1 / n2 the ratio of eq. 7; F = 1 under total internal reflection.
+    """
+    ratio = dr.rcp(eta)
+    sin2_t = ratio * ratio * dr.maximum(1.0 - cos_i * cos_i, 0.0)   # Snell, eq. 7
+    cos_t = dr.safe_sqrt(1.0 - sin2_t)
+    r_s = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
+    r_p = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
+    f = 0.5 * (r_s * r_s + r_p * r_p)
+    return dr.select(sin2_t >= 1.0, 1.0, f), cos_t, ratio
+
+
+def refract(d: Array3f, n_facing: Array3f, cos_i: Float, cos_t: Float, ratio: Float) -> Array3f:
+    """Refracted direction t = R d + (R cos_i - cos_t) N (eq. 8 / 12), N facing the incoming ray."""
+    return dr.normalize(dr.fma(n_facing, ratio * cos_i - cos_t, ratio * d))
+
+
+def dielectric_interface(d: Array3f, n: Array3f, int_ior: Float, ext_ior: Float):
+    """Everything both estimators need at a smooth dielectric hit by a ray of direction d.
+
+    Returns (F, reflected, refracted, radiance_scale): refracted radiance is scaled by (n1/n2)^2,
+    the 1/eta^2 of radiance crossing an interface.
+    """
+    cos_nd = dr.dot(n, d)
+    entering = cos_nd < 0
+    n_facing = dr.select(entering, n, -n)
+    cos_i = dr.abs(cos_nd)
+    eta = dr.select(entering, int_ior / ext_ior, ext_ior / int_ior)
+    f, cos_t, ratio = fresnel_dielectric(cos_i, eta)
+    reflected = reflect(d, n_facing)
+    refracted = refract(d, n_facing, cos_i, cos_t, ratio)
+    return f, reflected, refracted, ratio * ratio

@@ -1,0 +1,31 @@
+"""Pinhole camera with Mitsuba's `perspective` conventions and a box pixel filter."""
+from __future__ import annotations
+
+import drjit as dr
+import numpy as np
+
+from .jit import Array3f, Float, PCG32, UInt32, vec3
+from .scene import Camera
+
+
+def primary_rays(camera: Camera, sample: UInt32, spp: int, rng: PCG32):
+    """Rays for flat sample indices (pixel * spp + k), jittered uniformly inside their pixel.
+
+    Local +z looks forward, +x left and +y up, so pixel (0, 0) is the top-left one, as in Mitsuba.
+    Returns (origin, direction, t_min, t_max, pixel); t_min/t_max are the near and far clip planes.
+    """
+    pixel = sample // spp
+    x = Float(pixel % camera.width) + rng.next_float32()
+    y = Float(pixel // camera.width) + rng.next_float32()
+    tan_x, tan_y = camera.tan_half_fov()
+    local = dr.normalize(Array3f((1.0 - 2.0 * x / camera.width) * tan_x,
+                                 (1.0 - 2.0 * y / camera.height) * tan_y, 1.0))
+    m = camera.to_world
+    d = dr.normalize(vec3(m[:3, 0]) * local.x + vec3(m[:3, 1]) * local.y + vec3(m[:3, 2]) * local.z)
+    o = vec3(m[:3, 3]) + Array3f(0.0) * local.x  # broadcast to the wavefront's width
+    inv_z = dr.rcp(local.z)
+    return o, d, camera.near_clip * inv_z, camera.far_clip * inv_z, pixel
+
+
+def pixel_count(camera: Camera) -> int:
+    return int(np.prod((camera.width, camera.height)))

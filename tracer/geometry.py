@@ -1,0 +1,268 @@
+"""The scene as Dr.Jit code: closest hit, shadow rays, surface data and light sampling.
+
+Kernels are traced from the scene: every primitive's constants are literals in the kernel, and a shape
+kind, a smooth mesh or a second light the scene lacks adds no instruction.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import numpy as np
+
+from . import intersect
+from .jit import INF, NO_PRIM, Array3f, Bool, Float, UInt32, vec3
+from .sampling import square_to_uniform_triangle
+from .scene import BSDF, Mesh, Rectangle, Scene
+
+DIFFUSE, CONDUCTOR, DIELECTRIC = 0, 1, 2
+_KIND_CODE = {"diffuse": DIFFUSE, "conductor": CONDUCTOR, "dielectric": DIELECTRIC}
+
+
+@dataclass
+class Hit:
+    t: Float
+    prim: UInt32
+    b1: Float
+    b2: Float
+
+    @property
+    def valid(self) -> Bool:
+        return self.prim != NO_PRIM
+
+
+@dataclass
+class Surface:
+    """A ray's hit point: geometric normal n (the shape's own side), shading normal ns, material index."""
+
+    p: Array3f
+    n: Array3f
+    ns: Array3f
+    material: UInt32
+    prim: UInt32
+    valid: Bool
+
+
+@dataclass
+class LightSample:
+    y: Array3f
+    n: Array3f
+    radiance: Array3f
+    pdf_area: Float   # includes the choice of the light among the scene's lights
+    prim: UInt32
+
+
+class SceneGeometry:
+    def __init__(self, scene: Scene):
+        self.scene = scene
+        self.rects = scene.rectangles
+        self.spheres = scene.spheres
+        self.tri_vertices = np.concatenate([m.vertices[m.faces] for m in scene.meshes]) if scene.meshes \
+            else np.zeros((0, 3, 3))
+        self.n_rects, self.n_tris = len(self.rects), len(self.tri_vertices)
+        self.sphere_base = self.n_rects + self.n_tris
+        self.n_prims = self.sphere_base + len(self.spheres)
+        self.materials: list[BSDF] = scene.bsdfs
+        self.kinds = {_KIND_CODE[b.kind] for b in self.materials}
+        self.emitters = scene.emitters
+        self.smooth = any(m.normals is not None for m in scene.meshes)
+        self._build_tables()
+
+    # ---- host-side tables, gathered by primitive index -------------------------------------------
+    def _build_tables(self) -> None:
+        n = self.n_prims
+        normals, material = np.zeros((n, 3)), np.zeros(n, np.uint32)
+        radiance, light_pdf = np.zeros((n, 3)), np.zeros(n)
+        corner_normals = np.zeros((max(self.n_tris, 1), 3, 3))
+        for i, r in enumerate(self.rects):
+            normals[i], material[i] = r.normal, self.materials.index(r.bsdf)
+        base = self.n_rects
+        for m in self.scene.meshes:
+            v = m.vertices[m.faces]
+            fn = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+            fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+            sl = slice(base, base + len(m.faces))
+            normals[sl], material[sl] = fn, self.materials.index(m.bsdf)
+            tri = slice(base - self.n_rects, base - self.n_rects + len(m.faces))
+            corner_normals[tri] = m.normals[m.faces] if m.normals is not None else fn[:, None, :]
+            base += len(m.faces)
+        for i, s in enumerate(self.spheres):
+            material[self.sphere_base + i] = self.materials.index(s.bsdf)
+        self._prim_ranges = self._emitter_prim_ranges()
+        for k, e in enumerate(self.emitters):
+            lo, hi = self._prim_ranges[k]
+            area = e.area if isinstance(e, Rectangle) else e.triangle_areas.sum()
+            radiance[lo:hi] = e.radiance
+            light_pdf[lo:hi] = 1.0 / (len(self.emitters) * area) if area > 0 else 0.0
+        self.prim_normal = Float(normals.ravel())
+        self.prim_material = UInt32(material)
+        self.prim_radiance = Float(radiance.ravel())
+        self.prim_light_pdf = Float(light_pdf)
+        self.corner_normals = Float(corner_normals.ravel())
+        self.mat_albedo = Float(np.array([b.reflectance for b in self.materials]).ravel())
+        self.mat_kind = UInt32([_KIND_CODE[b.kind] for b in self.materials])
+        self.mat_twosided = UInt32([int(b.twosided) for b in self.materials])
+        self.mat_int_ior = Float([b.int_ior for b in self.materials])
+        self.mat_ext_ior = Float([b.ext_ior for b in self.materials])
+
+    def _emitter_prim_ranges(self) -> list[tuple[int, int]]:
+        ranges, base = [], self.n_rects
+        starts = {}
+        for m in self.scene.meshes:
+            starts[id(m)] = base
+            base += len(m.faces)
+        for e in self.emitters:
+            if isinstance(e, Rectangle):
+                i = self.rects.index(e)
+                ranges.append((i, i + 1))
+            else:
+                ranges.append((starts[id(e)], starts[id(e)] + len(e.faces)))
+        return ranges
+
+    # ---- ray queries ------------------------------------------------------------------------------
+    def closest_hit(self, o: Array3f, d: Array3f, t_min, t_max, skip: UInt32) -> Hit:
+        """Nearest hit along o + t d, never on primitive `skip` (the one the ray leaves)."""
+        t_best, prim = Float(t_max), UInt32(NO_PRIM)
+        b1, b2 = Float(0), Float(0)
+        for i, (t, u, v) in enumerate(self._candidates(o, d, t_min, skip)):
+            closer = t < t_best
+            t_best = dr.select(closer, t, t_best)
+            prim = dr.select(closer, i, prim)
+            if u is not None:
+                b1, b2 = dr.select(closer, u, b1), dr.select(closer, v, b2)
+        return Hit(t_best, prim, b1, b2)
+
+    def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32) -> Bool:
+        """Whether anything but `skip` and `target` lies on the segment o + t d, 0 < t < dist."""
+        blocked = Bool(False)
+        for i, (t, _, _) in enumerate(self._candidates(o, d, 0.0, skip, target)):
+            blocked |= t < dist
+        return blocked
+
+    def _candidates(self, o, d, t_min, skip, target=None):
+        """Per primitive: (t, b1, b2) of its hit, t = inf on a miss or for an excluded primitive."""
+        for i, r in enumerate(self.rects):
+            du, dv = r.dual_edges
+            t = intersect.ray_rectangle(o, d, vec3(r.center), vec3(du), vec3(dv), vec3(r.normal), t_min, INF)
+            yield self._exclude(t, i, skip, target), None, None
+        for j, v in enumerate(self.tri_vertices):
+            t, b1, b2 = intersect.ray_triangle(o, d, vec3(v[0]), vec3(v[1] - v[0]), vec3(v[2] - v[0]), t_min, INF)
+            yield self._exclude(t, self.n_rects + j, skip, target), b1, b2
+        for k, s in enumerate(self.spheres):
+            i = self.sphere_base + k
+            t = intersect.ray_sphere(o, d, vec3(s.center), s.radius, t_min, INF, skip == i)
+            yield (t if target is None else dr.select(target == i, INF, t)), None, None
+
+    @staticmethod
+    def _exclude(t, i, skip, target):
+        out = skip == i
+        if target is not None:
+            out |= target == i
+        return dr.select(out, INF, t)
+
+    # ---- surface data -----------------------------------------------------------------------------
+    def surface(self, hit: Hit, o: Array3f, d: Array3f) -> Surface:
+        valid = hit.valid
+        prim = dr.select(valid, hit.prim, 0)
+        p = dr.fma(d, hit.t, o)
+        n = dr.gather(Array3f, self.prim_normal, prim, valid)
+        if self.spheres:
+            is_sphere = prim >= self.sphere_base
+            center, radius = self._sphere_select(prim)
+            n = dr.select(is_sphere, (p - center) / radius, n)
+        ns = n
+        if self.smooth:
+            tri = prim - self.n_rects
+            is_tri = (prim >= self.n_rects) & (tri < self.n_tris)
+            b0 = 1.0 - hit.b1 - hit.b2
+            interp = (dr.gather(Array3f, self.corner_normals, tri * 3, is_tri) * b0
+                      + dr.gather(Array3f, self.corner_normals, tri * 3 + 1, is_tri) * hit.b1
+                      + dr.gather(Array3f, self.corner_normals, tri * 3 + 2, is_tri) * hit.b2)
+            ns = dr.select(is_tri, dr.normalize(interp), n)
+        material = dr.gather(UInt32, self.prim_material, prim, valid)
+        return Surface(p, n, ns, material, dr.select(valid, hit.prim, NO_PRIM), valid)
+
+    def _sphere_select(self, prim: UInt32) -> tuple[Array3f, Float]:
+        center, radius = vec3(self.spheres[0].center), Float(self.spheres[0].radius)
+        for k, s in enumerate(self.spheres[1:], 1):
+            this = prim == self.sphere_base + k
+            center = dr.select(this, vec3(s.center), center)
+            radius = dr.select(this, s.radius, radius)
+        return center, radius
+
+    def albedo(self, material: UInt32, active: Bool) -> Array3f:
+        return dr.gather(Array3f, self.mat_albedo, material, active)
+
+    def kind(self, material: UInt32, active: Bool) -> UInt32:
+        return dr.gather(UInt32, self.mat_kind, material, active)
+
+    def twosided(self, material: UInt32, active: Bool) -> Bool:
+        if not any(b.twosided for b in self.materials):
+            return Bool(False)
+        return dr.gather(UInt32, self.mat_twosided, material, active) != 0
+
+    def iors(self, material: UInt32, active: Bool) -> tuple[Float, Float]:
+        return (dr.gather(Float, self.mat_int_ior, material, active),
+                dr.gather(Float, self.mat_ext_ior, material, active))
+
+    # ---- lights -----------------------------------------------------------------------------------
+    def emitted(self, surf: Surface, wo: Array3f) -> Array3f:
+        """Radiance an area light emits towards wo: only on the side its normal faces."""
+        if not self.emitters:
+            return Array3f(0.0)
+        le = dr.gather(Array3f, self.prim_radiance, surf.prim, surf.valid)
+        return dr.select(surf.valid & (dr.dot(surf.ns, wo) > 0), le, Array3f(0.0))
+
+    def light_pdf_area(self, surf: Surface) -> Float:
+        """Area density with which sample_light picks this point (0 off the lights)."""
+        return dr.gather(Float, self.prim_light_pdf, surf.prim, surf.valid)
+
+    def sample_light(self, u_select: Float, u1: Float, u2: Float) -> LightSample:
+        """A light chosen uniformly, then a point uniform in area on it."""
+        n_em = len(self.emitters)
+        index = dr.minimum(UInt32(u_select * n_em), n_em - 1)
+        out = None
+        for k, e in enumerate(self.emitters):
+            s = self._sample_rectangle(e, k, u1, u2) if isinstance(e, Rectangle) else self._sample_mesh(e, k, u1, u2)
+            out = s if out is None else _select_sample(index == k, s, out)
+        return out
+
+    def _sample_rectangle(self, r: Rectangle, k: int, u1: Float, u2: Float) -> LightSample:
+        e1, e2 = r.edges
+        y = vec3(r.center) + vec3(e1) * (2.0 * u1 - 1.0) + vec3(e2) * (2.0 * u2 - 1.0)
+        pdf = 1.0 / (len(self.emitters) * r.area)
+        return LightSample(y, vec3(r.normal), vec3(r.radiance), Float(pdf), UInt32(self._prim_ranges[k][0]))
+
+    def _sample_mesh(self, m: Mesh, k: int, u1: Float, u2: Float) -> LightSample:
+        areas = m.triangle_areas
+        cdf = Float(np.cumsum(areas) / areas.sum())
+        # reuse u1: pick the triangle, then rescale the remainder of u1 to [0, 1)
+        tri = dr.binary_search(0, len(areas) - 1, lambda i: dr.gather(Float, cdf, i) <= u1)
+        lo = dr.select(tri > 0, dr.gather(Float, cdf, tri - 1, tri > 0), 0.0)
+        hi = dr.gather(Float, cdf, tri)
+        u1 = dr.clip((u1 - lo) / (hi - lo), 0.0, 1.0 - 2.0 ** -24)
+        b1, b2 = square_to_uniform_triangle(u1, u2)
+        prim = UInt32(self._prim_ranges[k][0]) + tri
+        corners = Float(m.vertices[m.faces].ravel())
+        v = [dr.gather(Array3f, corners, tri * 3 + c) for c in range(3)]
+        y = v[0] * (1.0 - b1 - b2) + v[1] * b1 + v[2] * b2
+        n = dr.gather(Array3f, self.prim_normal, prim)
+        if m.normals is not None:
+            cn = [dr.gather(Array3f, self.corner_normals, (prim - self.n_rects) * 3 + c) for c in range(3)]
+            n = dr.normalize(cn[0] * (1.0 - b1 - b2) + cn[1] * b1 + cn[2] * b2)
+        pdf = 1.0 / (len(self.emitters) * areas.sum())
+        return LightSample(y, n, vec3(m.radiance), Float(pdf), prim)
+
+    def describe(self) -> list[str]:
+        """What the traced kernel contains, for `tracer info`."""
+        lines = [f"intersection: {self.n_rects} rectangles (ray-plane, eq. 2-4), {self.n_tris} triangles "
+                 f"(Moeller-Trumbore), {len(self.spheres)} spheres (quadratic)"]
+        lines.append(f"shading normals: {'interpolated on smooth meshes' if self.smooth else 'geometric only'}")
+        lines.append(f"materials: {', '.join(sorted({b.kind for b in self.materials}))}")
+        lines.append(f"light sampling: {len(self.emitters)} area light(s)")
+        return lines
+
+
+def _select_sample(mask: Bool, a: LightSample, b: LightSample) -> LightSample:
+    return LightSample(dr.select(mask, a.y, b.y), dr.select(mask, a.n, b.n), dr.select(mask, a.radiance, b.radiance),
+                       dr.select(mask, a.pdf_area, b.pdf_area), dr.select(mask, a.prim, b.prim))

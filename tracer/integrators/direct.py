@@ -1,0 +1,57 @@
+"""Pieces both estimators share: one shadow ray to an area light (eq. 10) and the diffuse frame."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+
+from ..bsdf import diffuse_brdf
+from ..geometry import SceneGeometry, Surface
+from ..jit import Array3f, Bool, Float
+
+
+def facing_normal(geo: SceneGeometry, surf: Surface, wi: Array3f) -> tuple[Array3f, Bool]:
+    """Shading normal on the side wi comes from for two-sided materials; whether the side is lit.
+
+    One-sided materials are black from behind, as in Mitsuba.
+    """
+    twosided = geo.twosided(surf.material, surf.valid)
+    back = dr.dot(surf.ns, wi) < 0
+    ns = dr.select(twosided & back, -surf.ns, surf.ns)
+    return ns, dr.dot(ns, wi) > 0
+
+
+@dataclass
+class DirectSample:
+    value: Array3f    # f * Le * cos_x * cos_y / (d^2 * pdf_area): one term of eq. 10, A = 1 / pdf_area
+    pdf_light: Float  # the same sample's density in solid angle, for MIS
+    cos_x: Float
+    occluded: Bool
+
+
+def sample_direct(geo: SceneGeometry, surf: Surface, ns: Array3f, albedo: Array3f,
+                  u_select: Float, u1: Float, u2: Float, active: Bool) -> DirectSample:
+    """One shadow ray from a diffuse point to a point drawn uniformly on an area light (eq. 10)."""
+    ls = geo.sample_light(u_select, u1, u2)
+    to_light = ls.y - surf.p
+    dist2 = dr.squared_norm(to_light)
+    dist = dr.sqrt(dist2)
+    w = to_light / dist
+    cos_x = dr.dot(ns, w)
+    cos_y = -dr.dot(ls.n, w)
+    lit = active & (cos_x > 0) & (cos_y > 0) & (dist2 > 0)
+    occluded = geo.occluded(surf.p, w, dist, surf.prim, ls.prim)
+    geometry_term = cos_x * cos_y / dist2
+    value = diffuse_brdf(albedo) * ls.radiance * (geometry_term / ls.pdf_area)
+    ok = lit & ~occluded
+    pdf_light = ls.pdf_area * dist2 / dr.maximum(cos_y, 1e-30)
+    return DirectSample(dr.select(ok, value, Array3f(0.0)), pdf_light, cos_x, occluded)
+
+
+def power_heuristic(pdf_a: Float, pdf_b: Float) -> Float:
+    """Veach's power heuristic a^2 / (a^2 + b^2), written with ratios in [0, 1] so no square overflows."""
+    a_larger = pdf_a >= pdf_b
+    r = dr.select(a_larger, pdf_b / pdf_a, pdf_a / pdf_b)
+    r2 = r * r
+    w = dr.select(a_larger, dr.rcp(1.0 + r2), r2 / (1.0 + r2))
+    return dr.select((pdf_a > 0) & ~dr.isnan(w), w, 0.0)

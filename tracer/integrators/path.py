@@ -1,0 +1,88 @@
+"""Path tracing: one path per sample, next-event estimation combined with BSDF sampling by MIS
+(power heuristic), Russian roulette from `rr_depth`. Mitsuba's `path` integrator estimates the same
+integral at the same `max_depth`.
+"""
+from __future__ import annotations
+
+import drjit as dr
+
+from ..bsdf import dielectric_interface, reflect
+from ..geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneGeometry
+from ..jit import INF, NO_PRIM, PCG32, Array3f, Bool, Float, UInt32
+from ..sampling import square_to_cosine_hemisphere, to_world
+from .direct import facing_normal, power_heuristic, sample_direct
+
+
+@dr.syntax
+def path_radiance(geo: SceneGeometry, o: Array3f, d: Array3f, t_min: Float, t_max: Float, rng: PCG32,
+                  max_depth: UInt32, rr_depth: UInt32) -> tuple[Array3f, UInt32]:
+    """Radiance along each camera ray and the number of rays each path traced."""
+    L, beta, eta = Array3f(0.0), Array3f(1.0), Float(1.0)
+    depth, rays, skip = UInt32(0), UInt32(0), UInt32(NO_PRIM)
+    prev_delta, prev_pdf = Bool(True), Float(0.0)
+    active = Bool(max_depth > 0)
+    while active:
+        L, beta, eta, o, d, skip, prev_delta, prev_pdf, rays, active_next = _vertex(
+            geo, rng, L, beta, eta, o, d, t_min, t_max, skip, prev_delta, prev_pdf, rays, depth, max_depth)
+        t_min, t_max = Float(0.0), Float(INF)
+        depth += 1
+        rr_active = depth >= rr_depth
+        q = dr.minimum(dr.max(beta) * eta * eta, 0.95)
+        survive = rng.next_float32() < q
+        beta = dr.select(rr_active, beta / q, beta)
+        active = active_next & (~rr_active | survive) & (dr.max(beta) > 0)
+    return L, rays
+
+
+def _vertex(geo, rng, L, beta, eta, o, d, t_min, t_max, skip, prev_delta, prev_pdf, rays, depth, max_depth):
+    """One path vertex: emission (MIS-weighted), a shadow ray, and the next direction."""
+    hit = geo.closest_hit(o, d, t_min, t_max, skip)
+    rays += 1
+    surf = geo.surface(hit, o, d)
+    wi = -d
+    if geo.emitters:
+        cos_l = dr.abs(dr.dot(surf.ns, d))
+        le = geo.emitted(surf, wi)
+        on_light = dr.max(le) > 0
+        pdf_light = geo.light_pdf_area(surf) * dr.square(dr.select(on_light, hit.t, 0.0)) / dr.maximum(cos_l, 1e-30)
+        w = dr.select(prev_delta, 1.0, power_heuristic(prev_pdf, pdf_light))
+        L += dr.select(on_light, beta * le * w, Array3f(0.0))
+    active_next = surf.valid & (depth + 1 < max_depth)
+    kind = geo.kind(surf.material, surf.valid)
+    new_d, weight, pdf, delta = Array3f(0.0), Array3f(0.0), Float(0.0), Bool(False)
+    new_eta = eta
+
+    if DIFFUSE in geo.kinds:
+        is_diffuse = active_next & (kind == DIFFUSE)
+        ns, lit = facing_normal(geo, surf, wi)
+        albedo = geo.albedo(surf.material, is_diffuse)
+        is_diffuse &= lit
+        if geo.emitters:
+            ds = sample_direct(geo, surf, ns, albedo, rng.next_float32(), rng.next_float32(), rng.next_float32(),
+                               is_diffuse)
+            w_nee = power_heuristic(ds.pdf_light, dr.maximum(ds.cos_x, 0.0) / dr.pi)
+            L += dr.select(is_diffuse, beta * ds.value * w_nee, Array3f(0.0))
+            rays += dr.select(is_diffuse, 1, 0)
+        local = square_to_cosine_hemisphere(rng.next_float32(), rng.next_float32())
+        new_d = dr.select(is_diffuse, to_world(local, ns), new_d)
+        weight = dr.select(is_diffuse, albedo, weight)      # f cos / pdf = rho for cosine sampling
+        pdf = dr.select(is_diffuse, local.z / dr.pi, pdf)
+
+    if CONDUCTOR in geo.kinds:
+        is_mirror = active_next & (kind == CONDUCTOR) & (dr.dot(surf.ns, wi) > 0)
+        new_d = dr.select(is_mirror, reflect(d, surf.ns), new_d)
+        weight = dr.select(is_mirror, Array3f(1.0), weight)
+        delta |= is_mirror
+
+    if DIELECTRIC in geo.kinds:
+        is_glass = active_next & (kind == DIELECTRIC)
+        int_ior, ext_ior = geo.iors(surf.material, is_glass)
+        f, reflected, refracted, scale = dielectric_interface(d, surf.ns, int_ior, ext_ior)
+        choose_reflect = rng.next_float32() < f
+        new_d = dr.select(is_glass, dr.select(choose_reflect, reflected, refracted), new_d)
+        weight = dr.select(is_glass, Array3f(dr.select(choose_reflect, 1.0, scale)), weight)
+        new_eta = dr.select(is_glass & ~choose_reflect, eta / dr.sqrt(scale), eta)
+        delta |= is_glass
+
+    beta = beta * weight
+    return L, beta, new_eta, surf.p, new_d, surf.prim, delta, pdf, rays, active_next

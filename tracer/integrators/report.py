@@ -1,0 +1,163 @@
+"""The report's branching estimator, traced level by level as a wavefront.
+
+At every diffuse vertex: N shadow rays to the area lights (eq. 10) and M rays into the hemisphere
+(eq. 11), each child carrying 1/M of the estimate; a mirror spawns its reflected ray (eq. 5); glass
+spawns both the reflected and the refracted ray, weighted by F and 1 - F (eq. 7-8, 12). Light that an
+indirect ray reaches is not added again: eq. 10 counted it, so only rays leaving the camera or a
+specular vertex see emitters. A vertex is expanded only while the paths it starts can still
+contribute at `max_depth` (the report's depth D is max_depth D + 2).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+
+from ..bsdf import dielectric_interface, reflect
+from ..geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneGeometry, Surface
+from ..jit import NO_PRIM, PCG32, Array3f, Bool, Float, UInt32, UInt64
+from ..sampling import square_to_cosine_hemisphere, square_to_uniform_hemisphere, to_world
+from .direct import facing_normal, sample_direct
+
+
+@dataclass
+class ReportSettings:
+    direct: int = 16            # N: shadow rays per diffuse vertex
+    indirect: int = 8           # M: hemisphere rays per diffuse vertex
+    hemisphere: str = "cosine"  # "cosine" or "uniform" sampling of eq. 11's directions
+
+    def __post_init__(self):
+        if self.direct < 1 or self.indirect < 1:
+            raise ValueError(f"--direct and --indirect must be >= 1, got N = {self.direct}, M = {self.indirect}")
+        if self.hemisphere not in ("cosine", "uniform"):
+            raise ValueError(f"hemisphere sampling must be 'cosine' or 'uniform', got '{self.hemisphere}'")
+
+    @property
+    def slots(self) -> int:
+        """Children one vertex may spawn: M at a diffuse vertex, two at glass."""
+        return max(self.indirect, 2)
+
+
+@dataclass
+class Wavefront:
+    """The rays of one level of the tree; `weight` is the product of BRDF weights and 1/M factors."""
+
+    o: Array3f
+    d: Array3f
+    t_min: Float
+    t_max: Float
+    weight: Array3f
+    pixel: UInt32
+    skip: UInt32
+    sees_emitters: Bool
+
+    def __len__(self) -> int:
+        return dr.width(self.pixel)
+
+
+def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int, settings: ReportSettings,
+                image: Float, seed: int) -> tuple[Wavefront | None, int]:
+    """Intersects one level (its rays end at path vertex `vertex`), splats its emission and eq. 10
+    estimates into `image` (flat RGB) and returns the next level and the number of rays traced."""
+    hit = geo.closest_hit(wave.o, wave.d, wave.t_min, wave.t_max, wave.skip)
+    surf = geo.surface(hit, wave.o, wave.d)
+    wi = -wave.d
+    if geo.emitters:
+        dr.scatter_add(image, wave.weight * geo.emitted(surf, wi), wave.pixel, wave.sees_emitters & surf.valid)
+    if vertex + 1 > max_depth:
+        dr.eval(image)
+        return None, len(wave)
+    kind = geo.kind(surf.material, surf.valid)
+    ns, lit = facing_normal(geo, surf, wi)
+    diffuse = surf.valid & lit & (kind == DIFFUSE)
+    dr.eval(image, surf.p, surf.prim, surf.material, ns, kind, diffuse)
+    rays = len(wave)
+    if geo.emitters and DIFFUSE in geo.kinds:
+        rays += _shadow_rays(geo, surf, ns, diffuse, wave, settings.direct, image, seed)
+    return _spawn(geo, surf, ns, diffuse, kind, wave, vertex, max_depth, settings, seed), rays
+
+
+def _rng(n: int, seed: int, stream: int) -> PCG32:
+    return PCG32(n, dr.opaque(UInt64, (seed * 0x9E3779B97F4A7C15 + stream) % 2**64), dr.arange(UInt64, n))
+
+
+def _gather_surface(surf: Surface, lane: UInt32) -> Surface:
+    return Surface(dr.gather(Array3f, surf.p, lane), dr.gather(Array3f, surf.n, lane),
+                   dr.gather(Array3f, surf.ns, lane), dr.gather(UInt32, surf.material, lane),
+                   dr.gather(UInt32, surf.prim, lane), Bool(True))
+
+
+def _shadow_rays(geo, surf, ns, diffuse, wave, n_direct, image, seed) -> int:
+    """Eq. 10 at every diffuse vertex: N shadow rays, their mean splatted with the vertex's weight."""
+    vertices = dr.compress(diffuse)
+    count = dr.width(vertices) * n_direct
+    if count == 0:
+        return 0
+    lane = dr.gather(UInt32, vertices, dr.arange(UInt32, count) // n_direct)
+    sub = _gather_surface(surf, lane)
+    rng = _rng(count, seed, 1)
+    ds = sample_direct(geo, sub, dr.gather(Array3f, ns, lane), geo.albedo(sub.material, True),
+                       rng.next_float32(), rng.next_float32(), rng.next_float32(), Bool(True))
+    weight = dr.gather(Array3f, wave.weight, lane) * (1.0 / n_direct)
+    dr.scatter_add(image, weight * ds.value, dr.gather(UInt32, wave.pixel, lane))
+    dr.eval(image)
+    return count
+
+
+def _spawn(geo, surf, ns, diffuse, kind, wave, vertex, max_depth, settings, seed) -> Wavefront | None:
+    """The next level: M hemisphere rays per diffuse vertex (while their vertex can still reach a light
+    within max_depth), the mirror's reflection, glass's reflection and refraction."""
+    slots = settings.slots
+    lane = dr.arange(UInt32, len(wave) * slots)
+    parent, slot = lane // slots, lane % slots
+    k = dr.gather(UInt32, kind, parent)
+    valid = Bool(False)
+    if DIFFUSE in geo.kinds and vertex + 2 <= max_depth:
+        valid |= dr.gather(Bool, diffuse, parent) & (slot < settings.indirect)
+    if CONDUCTOR in geo.kinds:
+        front = dr.dot(dr.gather(Array3f, surf.ns, parent), dr.gather(Array3f, wave.d, parent)) < 0
+        valid |= (k == CONDUCTOR) & (slot == 0) & front
+    if DIELECTRIC in geo.kinds:
+        valid |= (k == DIELECTRIC) & (slot < 2)
+    valid &= dr.gather(UInt32, surf.prim, parent) != NO_PRIM
+    child = dr.compress(valid)
+    n = dr.width(child)
+    if n == 0:
+        return None
+    parent, slot = dr.gather(UInt32, parent, child), dr.gather(UInt32, slot, child)
+    k = dr.gather(UInt32, kind, parent)
+    p = dr.gather(Array3f, surf.p, parent)
+    d = dr.gather(Array3f, wave.d, parent)
+    n_s = dr.gather(Array3f, ns, parent)
+    weight = dr.gather(Array3f, wave.weight, parent)
+    new_d, factor = Array3f(0.0), Array3f(0.0)
+    rng = _rng(n, seed, 2)
+    if DIFFUSE in geo.kinds:
+        is_diffuse = k == DIFFUSE
+        albedo = geo.albedo(dr.gather(UInt32, surf.material, parent), is_diffuse)
+        u1, u2 = rng.next_float32(), rng.next_float32()
+        if settings.hemisphere == "cosine":
+            local = square_to_cosine_hemisphere(u1, u2)
+            f = albedo                                    # f cos / pdf = rho
+        else:
+            local = square_to_uniform_hemisphere(u1, u2)
+            f = albedo * (2.0 * local.z)                  # f cos / pdf = (rho / pi) cos 2 pi
+        new_d = dr.select(is_diffuse, to_world(local, n_s), new_d)
+        factor = dr.select(is_diffuse, f * (1.0 / settings.indirect), factor)
+    if CONDUCTOR in geo.kinds:
+        is_mirror = k == CONDUCTOR
+        new_d = dr.select(is_mirror, reflect(d, dr.gather(Array3f, surf.ns, parent)), new_d)
+        factor = dr.select(is_mirror, Array3f(1.0), factor)
+    if DIELECTRIC in geo.kinds:
+        is_glass = k == DIELECTRIC
+        int_ior, ext_ior = geo.iors(dr.gather(UInt32, surf.material, parent), is_glass)
+        fr, reflected, refracted, scale = dielectric_interface(d, dr.gather(Array3f, surf.ns, parent), int_ior, ext_ior)
+        is_reflection = slot == 0
+        new_d = dr.select(is_glass, dr.select(is_reflection, reflected, refracted), new_d)
+        factor = dr.select(is_glass, Array3f(dr.select(is_reflection, fr, (1.0 - fr) * scale)), factor)
+    specular = k != DIFFUSE
+    inf = Float(float("inf"))
+    out = Wavefront(p, new_d, Float(0.0), inf, weight * factor, dr.gather(UInt32, wave.pixel, parent),
+                    dr.gather(UInt32, surf.prim, parent), specular)
+    dr.eval(out.o, out.d, out.weight, out.pixel, out.skip, out.sees_emitters)
+    return out

@@ -1,0 +1,63 @@
+"""Ray-primitive intersections (the report's section 2.3). Each returns the ray parameter t, inf on a miss.
+
+Directions are unit vectors; t_min/t_max bound the accepted hits.
+"""
+import drjit as dr
+
+from .jit import INF, Array3f, Bool, Float
+
+
+def ray_rectangle(o: Array3f, d: Array3f, center, du, dv, n, t_min, t_max) -> Float:
+    """Ray-plane intersection (eq. 2-4) and a bounds test in the rectangle's own coordinates.
+
+    `du`, `dv` are the dual edge vectors, so dot(p - center, du) is the local x in [-1, 1].
+    A ray parallel to the plane (N.D = 0) misses.
+    """
+    cos_nd = dr.dot(n, d)                                        # eq. 2
+    t = dr.dot(n, center - o) / cos_nd                           # eq. 3
+    rel = dr.fma(d, t, o) - center                               # eq. 4, relative to the centre
+    inside = (dr.abs(dr.dot(rel, du)) <= 1.0) & (dr.abs(dr.dot(rel, dv)) <= 1.0)
+    hit = (cos_nd != 0) & inside & (t > t_min) & (t < t_max)
+    return dr.select(hit, t, INF)
+
+
+def ray_triangle(o: Array3f, d: Array3f, v0, e1, e2, t_min, t_max) -> tuple[Float, Float, Float]:
+    """Moeller-Trumbore: t and the barycentrics (b1, b2) of v1 = v0 + e1 and v2 = v0 + e2.
+
+    Points on edges and vertices count as inside (b >= 0), so a ray through a shared edge hits a
+    neighbour; a ray in the triangle's plane (det = 0) misses.
+    """
+    pvec = dr.cross(d, e2)
+    det = dr.dot(e1, pvec)
+    inv_det = dr.rcp(det)
+    tvec = o - v0
+    b1 = dr.dot(tvec, pvec) * inv_det
+    qvec = dr.cross(tvec, e1)
+    b2 = dr.dot(d, qvec) * inv_det
+    t = dr.dot(e2, qvec) * inv_det
+    hit = (det != 0) & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1) & (t > t_min) & (t < t_max)
+    return dr.select(hit, t, INF), b1, b2
+
+
+def ray_sphere(o: Array3f, d: Array3f, center, radius: float, t_min, t_max, leaving: Bool) -> Float:
+    """Nearest root of |o + t d - c|^2 = r^2 in (t_min, t_max).
+
+    The discriminant is formed as r^2 - |oc - b d|^2 (Haines et al., Ray Tracing Gems ch. 7), which
+    stays accurate far from the sphere. `leaving` marks rays that start on this sphere: they can only
+    hit its far side, and only when heading inward.
+    """
+    oc = o - center
+    b = dr.dot(oc, d)
+    perp = dr.fma(d, -b, oc)
+    disc = radius * radius - dr.squared_norm(perp)
+    c = dr.squared_norm(oc) - radius * radius
+    q = -b - dr.copysign(dr.safe_sqrt(disc), b)   # numerically stable pair of roots: q and c / q
+    r0, r1 = q, c / q
+    t_near, t_far = dr.minimum(r0, r1), dr.maximum(r0, r1)
+    t_far = dr.select(dr.isnan(t_far), t_near, t_far)
+    t_near = dr.select(leaving, INF, t_near)
+    t_far = dr.select(leaving & (b >= 0), INF, t_far)
+    ok_near = (t_near > t_min) & (t_near < t_max)
+    ok_far = (t_far > t_min) & (t_far < t_max)
+    t = dr.select(ok_near, t_near, dr.select(ok_far, t_far, INF))
+    return dr.select(disc >= 0, t, INF)

@@ -1,0 +1,39 @@
+"""The Dr.Jit backend: CUDA where a GPU is present, LLVM on the CPU otherwise.
+
+`TRACER_BACKEND=llvm` or `=cuda` forces one. Every kernel module takes its array types from here.
+"""
+import os
+
+import drjit as dr
+
+
+def _pick_backend():
+    wanted = os.environ.get("TRACER_BACKEND", "").lower()
+    if wanted not in ("", "llvm", "cuda"):
+        raise RuntimeError(f"TRACER_BACKEND must be 'llvm' or 'cuda', got '{wanted}'")
+    if wanted == "cuda" or (not wanted and dr.has_backend(dr.JitBackend.CUDA)):
+        import drjit.cuda as backend
+        return backend, "cuda"
+    if not dr.has_backend(dr.JitBackend.LLVM):
+        raise RuntimeError("Dr.Jit's LLVM backend is unavailable: install an LLVM runtime >= 16 "
+                           "(Debian/Ubuntu: apt-get install libllvm19) or set DRJIT_LIBLLVM_PATH")
+    import drjit.llvm as backend
+    return backend, "llvm"
+
+
+_backend, BACKEND = _pick_backend()
+Float, UInt32, UInt64, Bool = _backend.Float, _backend.UInt32, _backend.UInt64, _backend.Bool
+Array3f, PCG32 = _backend.Array3f, _backend.PCG32
+
+INF = float("inf")
+NO_PRIM = 0xFFFFFFFF  # primitive index of "no primitive"
+
+
+def vec3(v) -> Array3f:
+    """A constant 3-vector, baked into the kernel as literals."""
+    return Array3f(float(v[0]), float(v[1]), float(v[2]))
+
+
+def opaque_u32(value: int) -> UInt32:
+    """A run-time constant: changing it does not recompile the kernel."""
+    return dr.opaque(UInt32, value)

@@ -1,0 +1,127 @@
+"""Rendering a scene with either estimator, in chunks that bound memory, into a NumPy image."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import drjit as dr
+import numpy as np
+from tqdm import tqdm
+
+from .camera import primary_rays
+from .geometry import SceneGeometry
+from .integrators.path import path_radiance
+from .integrators.report import ReportSettings, Wavefront, trace_level
+from .jit import BACKEND, NO_PRIM, PCG32, Array3f, Bool, Float, UInt32, UInt64, opaque_u32
+from .scene import Scene
+
+ESTIMATORS = ("path", "report")
+PATH_CHUNK = 1 << 21       # samples per path-tracing launch
+REPORT_BUDGET = 1 << 23    # worst-case rays per report-estimator level
+
+
+@dataclass
+class RenderResult:
+    image: np.ndarray                 # (height, width, 3) float32, linear radiance
+    estimator: str
+    spp: int
+    max_depth: int
+    seconds: float = 0.0              # wall time of the whole render
+    compile_seconds: float = 0.0      # of which Dr.Jit spent generating and compiling kernels
+    rays: int = 0                     # closest-hit and shadow rays traced
+    backend: str = BACKEND
+    settings: dict = field(default_factory=dict)
+
+    @property
+    def render_seconds(self) -> float:
+        return max(self.seconds - self.compile_seconds, 0.0)
+
+    @property
+    def rays_per_second(self) -> float:
+        return self.rays / self.render_seconds if self.render_seconds > 0 else 0.0
+
+
+def render(scene: Scene, estimator: str = "path", spp: int | None = None, seed: int | None = None,
+           max_depth: int | None = None, direct: int = 16, indirect: int = 8, hemisphere: str = "cosine",
+           progress: bool = False) -> RenderResult:
+    """Renders `scene`; unset arguments take the scene file's values (spp, seed, max_depth)."""
+    if estimator not in ESTIMATORS:
+        raise ValueError(f"unknown estimator '{estimator}'; choose one of {', '.join(ESTIMATORS)}")
+    spp = scene.spp if spp is None else spp
+    seed = scene.seed if seed is None else seed
+    max_depth = scene.max_depth if max_depth is None else max_depth
+    if spp < 1:
+        raise ValueError(f"spp must be >= 1, got {spp}")
+    if max_depth < -1:
+        raise ValueError(f"max_depth must be -1 (unbounded) or >= 0, got {max_depth}")
+    geo = SceneGeometry(scene)
+    cam = scene.camera
+    n_pixels = cam.width * cam.height
+    image = dr.zeros(Float, n_pixels * 3)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()  # clear
+    start = time.perf_counter()
+    if estimator == "path":
+        rays, settings = _render_path(geo, scene, image, spp, seed, max_depth, progress), {}
+    else:
+        report = ReportSettings(direct, indirect, hemisphere)
+        if max_depth < 0:
+            raise ValueError("the report estimator branches at every bounce: it needs a finite max_depth")
+        rays = _render_report(geo, scene, image, spp, seed, max_depth, report, progress)
+        settings = {"direct": direct, "indirect": indirect, "hemisphere": hemisphere,
+                    "report_depth": max_depth - 2}
+    pixels = (image / spp).numpy().reshape(cam.height, cam.width, 3).astype(np.float32)
+    seconds = time.perf_counter() - start
+    compile_s = sum(k.get("codegen_time", 0) + k.get("backend_time", 0) for k in dr.kernel_history()) / 1000
+    dr.set_flag(dr.JitFlag.KernelHistory, False)
+    return RenderResult(pixels, estimator, spp, max_depth, seconds, compile_s, rays, settings=settings)
+
+
+def _chunks(total: int, size: int, progress: bool, label: str):
+    bar = tqdm(total=total, unit="spl", unit_scale=True, desc=label, disable=not progress, leave=False)
+    for start in range(0, total, size):
+        n = min(size, total - start)
+        yield start, n
+        bar.update(n)
+    bar.close()
+
+
+def _seed_state(seed: int, *stream: int) -> int:
+    h = seed & 0xFFFFFFFFFFFFFFFF
+    for s in stream:
+        h = (h * 0x9E3779B97F4A7C15 + s + 1) % 2**64
+    return h
+
+
+def _render_path(geo, scene, image, spp, seed, max_depth, progress) -> int:
+    depth = 0xFFFFFFFF if max_depth < 0 else max_depth
+    rays = 0
+    for start, n in _chunks(scene.camera.width * scene.camera.height * spp, PATH_CHUNK, progress, "path"):
+        sample = dr.arange(UInt32, n) + opaque_u32(start)
+        rng = PCG32(n, dr.opaque(UInt64, _seed_state(seed)), UInt64(sample))
+        o, d, t_min, t_max, pixel = primary_rays(scene.camera, sample, spp, rng)
+        L, count = path_radiance(geo, o, d, t_min, t_max, rng, opaque_u32(depth), opaque_u32(scene.rr_depth))
+        dr.scatter_add(image, L, pixel)
+        total = dr.sum(count)
+        dr.eval(image, total)
+        rays += int(total[0])
+    return rays
+
+
+def _render_report(geo, scene, image, spp, seed, max_depth, settings, progress) -> int:
+    widest = settings.slots ** max(max_depth - 2, 0) * settings.direct
+    chunk = max(1, REPORT_BUDGET // widest)
+    rays = 0
+    for index, (start, n) in enumerate(_chunks(scene.camera.width * scene.camera.height * spp, chunk,
+                                               progress, "report")):
+        sample = dr.arange(UInt32, n) + opaque_u32(start)
+        rng = PCG32(n, dr.opaque(UInt64, _seed_state(seed, index)), UInt64(sample))
+        o, d, t_min, t_max, pixel = primary_rays(scene.camera, sample, spp, rng)
+        wave = Wavefront(o, d, t_min, t_max, Array3f(1.0), pixel, UInt32(NO_PRIM), Bool(True))
+        vertex = 1
+        while wave is not None and vertex <= max(max_depth, 0) :
+            wave, traced = trace_level(geo, wave, vertex, max_depth, settings, image,
+                                       _seed_state(seed, index, vertex))
+            rays += traced
+            vertex += 1
+    return rays

@@ -1,0 +1,160 @@
+"""The scene description both renderers read: what the XML loader produces and the kernels consume.
+
+Plain host-side data (NumPy); nothing here touches Dr.Jit.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import transform
+
+
+class SceneError(ValueError):
+    """A scene that cannot be rendered; the message is one line naming file, line and element."""
+
+
+@dataclass(frozen=True)
+class BSDF:
+    """`diffuse` (Lambertian, one-sided unless `twosided`), `conductor` (perfect mirror) or `dielectric`."""
+
+    kind: str
+    reflectance: tuple[float, float, float] = (0.5, 0.5, 0.5)
+    twosided: bool = False
+    int_ior: float = 1.5046
+    ext_ior: float = 1.000277
+
+    @property
+    def eta(self) -> float:
+        """Relative index of refraction int_ior / ext_ior."""
+        return self.int_ior / self.ext_ior
+
+
+@dataclass(eq=False)
+class Rectangle:
+    """Mitsuba's `rectangle`: [-1,1]^2 in the local xy-plane, normal +z, placed by `to_world`."""
+
+    to_world: np.ndarray
+    bsdf: BSDF
+    radiance: tuple[float, float, float] | None = None
+    name: str = ""
+
+    @property
+    def center(self) -> np.ndarray:
+        return self.to_world[:3, 3].copy()
+
+    @property
+    def edges(self) -> tuple[np.ndarray, np.ndarray]:
+        """Half-edge vectors: the images of local +x and +y."""
+        return self.to_world[:3, 0].copy(), self.to_world[:3, 1].copy()
+
+    @property
+    def dual_edges(self) -> tuple[np.ndarray, np.ndarray]:
+        """Rows of the inverse transform: dot(p - center, du) is the local x coordinate of p."""
+        inv = np.linalg.inv(self.to_world[:3, :3])
+        return inv[0].copy(), inv[1].copy()
+
+    @property
+    def normal(self) -> np.ndarray:
+        return transform.apply_normal(self.to_world, [0.0, 0.0, 1.0])[0]
+
+    @property
+    def area(self) -> float:
+        e1, e2 = self.edges
+        return 4.0 * float(np.linalg.norm(np.cross(e1, e2)))
+
+
+@dataclass(eq=False)
+class Sphere:
+    center: np.ndarray
+    radius: float
+    bsdf: BSDF
+    name: str = ""
+    radiance: None = None
+
+
+@dataclass(eq=False)
+class Mesh:
+    """A triangle mesh in world space; `normals` are per-vertex shading normals, None for face normals."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    bsdf: BSDF
+    normals: np.ndarray | None = None
+    radiance: tuple[float, float, float] | None = None
+    name: str = ""
+
+    @property
+    def triangle_areas(self) -> np.ndarray:
+        v = self.vertices[self.faces]
+        return 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+
+
+@dataclass
+class Camera:
+    """Mitsuba's `perspective` sensor with an `hdrfilm` and a box reconstruction filter."""
+
+    to_world: np.ndarray
+    fov: float = 90.0
+    fov_axis: str = "x"
+    near_clip: float = 1e-2
+    far_clip: float = 1e4
+    width: int = 768
+    height: int = 576
+
+    def tan_half_fov(self) -> tuple[float, float]:
+        """tan of half the field of view along image x and y, from `fov` and `fov_axis`."""
+        aspect = self.width / self.height
+        t = float(np.tan(np.radians(self.fov) / 2))
+        axis = self.fov_axis
+        if axis == "smaller":
+            axis = "x" if aspect <= 1 else "y"
+        elif axis == "larger":
+            axis = "x" if aspect > 1 else "y"
+        if axis == "x":
+            return t, t / aspect
+        if axis == "y":
+            return t * aspect, t
+        diag = t / np.hypot(aspect, 1.0)  # "diagonal"
+        return diag * aspect, diag
+
+
+@dataclass
+class Scene:
+    camera: Camera
+    rectangles: list[Rectangle] = field(default_factory=list)
+    meshes: list[Mesh] = field(default_factory=list)
+    spheres: list[Sphere] = field(default_factory=list)
+    spp: int = 4
+    seed: int = 0
+    max_depth: int = -1
+    rr_depth: int = 5
+    path: Path | None = None
+
+    @property
+    def emitters(self) -> list[Rectangle | Mesh]:
+        return [s for s in (*self.rectangles, *self.meshes) if s.radiance is not None]
+
+    @property
+    def bsdfs(self) -> list[BSDF]:
+        seen: list[BSDF] = []
+        for s in (*self.rectangles, *self.meshes, *self.spheres):
+            if s.bsdf not in seen:
+                seen.append(s.bsdf)
+        return seen
+
+    @property
+    def triangle_count(self) -> int:
+        return sum(len(m.faces) for m in self.meshes)
+
+    def extent(self) -> float:
+        """Diagonal of the bounding box of all geometry (the scene's length scale)."""
+        pts = [r.center + s * e for r in self.rectangles for e in r.edges for s in (-1, 1)]
+        pts += [m.vertices for m in self.meshes]
+        pts += [np.stack([s.center - s.radius, s.center + s.radius]) for s in self.spheres]
+        if not pts:
+            return 1.0
+        allp = np.vstack([np.atleast_2d(p) for p in pts])
+        return float(np.linalg.norm(allp.max(0) - allp.min(0))) or 1.0
