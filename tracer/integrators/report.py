@@ -104,6 +104,14 @@ def _shadow_rays(geo, surf, ns, diffuse, wave, n_direct, image, seed) -> int:
     return count
 
 
+def hemisphere_sample(albedo: Array3f, u1: Float, u2: Float, hemisphere: str) -> tuple[Array3f, Array3f]:
+    """A direction of eq. 11 about +z and its weight f cos(theta) / pdf."""
+    if hemisphere == "cosine":
+        return square_to_cosine_hemisphere(u1, u2), albedo               # (rho/pi) cos / (cos/pi)
+    local = square_to_uniform_hemisphere(u1, u2)
+    return local, albedo * (2.0 * local.z)                               # (rho/pi) cos / (1/(2 pi))
+
+
 def _spawn(geo, surf, ns, diffuse, kind, wave, vertex, max_depth, settings, seed) -> Wavefront | None:
     """The next level: M hemisphere rays per diffuse vertex (while their vertex can still reach a light
     within max_depth), the mirror's reflection, glass's reflection and refraction."""
@@ -135,13 +143,7 @@ def _spawn(geo, surf, ns, diffuse, kind, wave, vertex, max_depth, settings, seed
     if DIFFUSE in geo.kinds:
         is_diffuse = k == DIFFUSE
         albedo = geo.albedo(dr.gather(UInt32, surf.material, parent), is_diffuse)
-        u1, u2 = rng.next_float32(), rng.next_float32()
-        if settings.hemisphere == "cosine":
-            local = square_to_cosine_hemisphere(u1, u2)
-            f = albedo                                    # f cos / pdf = rho
-        else:
-            local = square_to_uniform_hemisphere(u1, u2)
-            f = albedo * (2.0 * local.z)                  # f cos / pdf = (rho / pi) cos 2 pi
+        local, f = hemisphere_sample(albedo, rng.next_float32(), rng.next_float32(), settings.hemisphere)
         new_d = dr.select(is_diffuse, to_world(local, n_s), new_d)
         factor = dr.select(is_diffuse, f * (1.0 / settings.indirect), factor)
     if CONDUCTOR in geo.kinds:

@@ -1,0 +1,113 @@
+"""`tracer render SCENE.xml --output OUT.exr ...` and `tracer info SCENE.xml`."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from .mitsuba_xml import load_scene
+from .scene import SceneError
+
+DEPTH_NOTE = ("max_depth counts path segments as Mitsuba does (1: lights seen directly, 2: direct light, "
+              "-1: unbounded); the report's depth D is max_depth D + 2")
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="tracer", description="A Monte Carlo ray tracer on Dr.Jit for Mitsuba 3 scenes.")
+    sub = p.add_subparsers(dest="command", required=True)
+    r = sub.add_parser("render", help="render a scene to a linear EXR and an sRGB PNG beside it",
+                       epilog=DEPTH_NOTE)
+    r.add_argument("scene", type=Path)
+    r.add_argument("--output", "-o", type=Path, required=True, help="output .exr (a .png is written beside it)")
+    r.add_argument("--estimator", choices=("path", "report"), default="path")
+    r.add_argument("--spp", type=int, help="samples (camera rays) per pixel; default: the scene's sample_count "
+                   "for path, 1 for report (the report's one ray per pixel)")
+    r.add_argument("--seed", type=int, help="random seed; default: the scene's sampler seed")
+    depth = r.add_mutually_exclusive_group()
+    depth.add_argument("--max-depth", type=int, help="Mitsuba's max_depth; default: the scene's integrator")
+    depth.add_argument("--report-depth", type=int, help="the report's depth D (= max_depth D + 2)")
+    r.add_argument("--direct", "-N", type=int, default=16, help="report estimator: shadow rays per diffuse hit (eq. 10)")
+    r.add_argument("--indirect", "-M", type=int, default=8, help="report estimator: hemisphere rays per diffuse hit (eq. 11)")
+    r.add_argument("--hemisphere", choices=("cosine", "uniform"), default="cosine",
+                   help="report estimator: how eq. 11's directions are drawn")
+    r.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
+                   help="override a <default> of the scene, like mitsuba -D")
+    r.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    i = sub.add_parser("info", help="what a scene holds and what its kernel includes")
+    i.add_argument("scene", type=Path)
+    i.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE")
+    return p
+
+
+def _defines(items: list[str]) -> dict[str, str]:
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            raise SceneError(f"-D {item}: expected NAME=VALUE")
+        out[name] = value
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        scene = load_scene(args.scene, **_defines(args.defines))
+        return _render(scene, args) if args.command == "render" else _info(scene)
+    except (SceneError, ValueError, OSError) as e:
+        print(f"tracer: error: {e}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("tracer: interrupted; no output written", file=sys.stderr)
+        return 130
+
+
+def _render(scene, args) -> int:
+    from .imageio import write_exr, write_png
+    from .render import render
+
+    if args.output.suffix.lower() != ".exr":
+        raise SceneError(f"--output {args.output}: the output must be an .exr file")
+    max_depth = args.max_depth if args.report_depth is None else args.report_depth + 2
+    spp = args.spp if args.spp is not None or args.estimator == "path" else 1
+    result = render(scene, args.estimator, spp=spp, seed=args.seed, max_depth=max_depth, direct=args.direct,
+                    indirect=args.indirect, hemisphere=args.hemisphere, progress=not args.quiet)
+    png = args.output.with_suffix(".png")
+    write_exr(args.output, result.image)
+    write_png(png, result.image)
+    depth = "unbounded" if result.max_depth < 0 else f"{result.max_depth}"
+    extra = ""
+    if args.estimator == "report":
+        s = result.settings
+        extra = f", N = {s['direct']}, M = {s['indirect']} ({s['hemisphere']}), report depth {s['report_depth']}"
+    h, w = result.image.shape[:2]
+    print(f"rendered {args.scene} with {args.estimator} at {w} x {h}, {result.spp} spp, max_depth {depth}{extra} "
+          f"on {result.backend}")
+    print(f"  compile {result.compile_seconds:.2f} s, render {result.render_seconds:.2f} s, "
+          f"total {result.seconds:.2f} s")
+    print(f"  rays {result.rays:,} ({result.rays_per_second / 1e6:.1f} M rays/s)")
+    print(f"  wrote {args.output} and {png}")
+    return 0
+
+
+def _info(scene) -> int:
+    from .geometry import SceneGeometry
+
+    cam = scene.camera
+    print(f"{scene.path}")
+    print(f"  camera: perspective, fov {cam.fov} ({cam.fov_axis}), {cam.width} x {cam.height}")
+    print(f"  sampler: {scene.spp} spp, seed {scene.seed}; integrator: max_depth {scene.max_depth}, "
+          f"rr_depth {scene.rr_depth}")
+    print(f"  ({DEPTH_NOTE})")
+    print(f"  shapes: {len(scene.rectangles)} rectangles, {len(scene.meshes)} meshes "
+          f"({scene.triangle_count} triangles), {len(scene.spheres)} spheres")
+    for e in scene.emitters:
+        print(f"  light '{e.name}': radiance {tuple(round(x, 4) for x in e.radiance)}")
+    print("  kernel:")
+    for line in SceneGeometry(scene).describe():
+        print(f"    {line}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
