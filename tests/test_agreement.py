@@ -70,3 +70,16 @@ def test_fails_on_the_report_codes_double_cosine(monkeypatch):
     ours = tracer_passes("hexagon_room.xml", "report", 3)
     result = welch_test(ours, reference("hexagon_room.xml", 3), alpha=ALPHA)
     assert not result.passed, result.summary()
+
+
+@pytest.mark.parametrize("estimator", ["path", "report"])
+def test_mesh_light_smooth_normals_twosided_agree_with_mitsuba(estimator):
+    """Two lights (one a mesh), a smooth-normal mesh, a two-sided floor, mirror and glass spheres."""
+    scene_file = SCENES.parent / "tests" / "data" / "two_lights.xml"
+    scene = tracer.load_scene(scene_file)
+    opts = dict(REPORT) if estimator == "report" else dict(spp=SPP)
+    ours = np.stack([render(scene, estimator, seed=2000 + k, max_depth=4, **opts).image for k in range(PASSES)])
+    from validation.mitsuba_render import render_passes
+    ref = render_passes(scene_file, PASSES, SPP, seed=7, max_depth=4)
+    result = welch_test(ours, ref, alpha=ALPHA)
+    assert result.passed, result.summary()

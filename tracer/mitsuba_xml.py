@@ -333,7 +333,6 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
     kind = _check_type(ctx, node)
     props = _properties(ctx, node, allowed_children=("bsdf", "ref", "emitter"))
     bsdfs = [c for c in node.children if c.tag in ("bsdf", "ref")]
-    bsdf = _bsdf(ctx, bsdfs[0]) if bsdfs else BSDF("diffuse")
     radiance = None
     for em in (c for c in node.children if c.tag == "emitter"):
         _check_type(ctx, em)
@@ -342,6 +341,8 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
         if np.any(value < 0):
             raise ctx.error(em, f"radiance must be non-negative, got {tuple(value)}")
         radiance = tuple(float(x) for x in value)
+    # Mitsuba's default: diffuse 0.5, but black on an emitter shape.
+    bsdf = _bsdf(ctx, bsdfs[0]) if bsdfs else BSDF("diffuse", (0.0,) * 3 if radiance else (0.5,) * 3)
     to_world = props.get("to_world", np.eye(4))
     name = node.attrib.get("id", f"{kind}@{node.line}")
     if kind == "rectangle":
