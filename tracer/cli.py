@@ -57,6 +57,9 @@ def main(argv: list[str] | None = None) -> int:
     except (SceneError, ValueError, OSError) as e:
         print(f"tracer: error: {e}", file=sys.stderr)
         return 1
+    except RuntimeError as e:  # Dr.Jit: no backend, out of memory, ...
+        print(f"tracer: error: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("tracer: interrupted; no output written", file=sys.stderr)
         return 130
