@@ -1,6 +1,12 @@
 """Path tracing: one path per sample, next-event estimation combined with BSDF sampling by MIS
 (power heuristic), Russian roulette from `rr_depth`. Mitsuba's `path` integrator estimates the same
 integral at the same `max_depth`.
+
+Russian roulette survives with probability q = min(max(throughput) * eta^2, Q_MAX) and divides the
+throughput by q, so a surviving path's weight stays at most 1 / eta^2 while its throughput is below
+Q_MAX. Mitsuba caps q at 0.95, which lets weights grow as (rho / 0.95)^k in a scene of albedo rho > 0.95:
+still unbiased, but the rare long paths that carry most of the light then come with huge weights and a
+few hundred samples underestimate the image badly. Q_MAX < 1 keeps every path finite.
 """
 from __future__ import annotations
 
@@ -11,6 +17,8 @@ from ..geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneGeometry
 from ..jit import INF, NO_PRIM, PCG32, Array3f, Bool, Float, UInt32
 from ..sampling import square_to_cosine_hemisphere, to_world
 from .direct import facing_normal, power_heuristic, sample_direct
+
+Q_MAX = 0.9995  # largest Russian-roulette survival probability
 
 
 @dr.syntax
@@ -27,7 +35,7 @@ def path_radiance(geo: SceneGeometry, o: Array3f, d: Array3f, t_min: Float, t_ma
         t_min, t_max = Float(0.0), Float(INF)
         depth += 1
         rr_active = depth >= rr_depth
-        q = dr.minimum(dr.max(beta) * eta * eta, 0.95)
+        q = dr.minimum(dr.max(beta) * eta * eta, Q_MAX)
         survive = rng.next_float32() < q
         beta = dr.select(rr_active, beta / q, beta)
         active = active_next & (~rr_active | survive) & (dr.max(beta) > 0)
