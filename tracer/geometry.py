@@ -70,7 +70,7 @@ class SceneGeometry:
 
     # ---- host-side tables, gathered by primitive index -------------------------------------------
     def _build_tables(self) -> None:
-        n = self.n_prims
+        n = max(self.n_prims, 1)  # an empty scene still needs a table to gather (masked off) from
         normals, material = np.zeros((n, 3)), np.zeros(n, np.uint32)
         radiance, light_pdf = np.zeros((n, 3)), np.zeros(n)
         corner_normals = np.zeros((max(self.n_tris, 1), 3, 3))
@@ -99,11 +99,12 @@ class SceneGeometry:
         self.prim_radiance = Float(radiance.ravel())
         self.prim_light_pdf = Float(light_pdf)
         self.corner_normals = Float(corner_normals.ravel())
-        self.mat_albedo = Float(np.array([b.reflectance for b in self.materials]).ravel())
-        self.mat_kind = UInt32([_KIND_CODE[b.kind] for b in self.materials])
-        self.mat_twosided = UInt32([int(b.twosided) for b in self.materials])
-        self.mat_int_ior = Float([b.int_ior for b in self.materials])
-        self.mat_ext_ior = Float([b.ext_ior for b in self.materials])
+        materials = self.materials or [BSDF("diffuse", (0.0, 0.0, 0.0))]
+        self.mat_albedo = Float(np.array([b.reflectance for b in materials]).ravel())
+        self.mat_kind = UInt32([_KIND_CODE[b.kind] for b in materials])
+        self.mat_twosided = UInt32([int(b.twosided) for b in materials])
+        self.mat_int_ior = Float([b.int_ior for b in materials])
+        self.mat_ext_ior = Float([b.ext_ior for b in materials])
 
     def _emitter_prim_ranges(self) -> list[tuple[int, int]]:
         ranges, base = [], self.n_rects
