@@ -315,7 +315,7 @@ def _bsdf(ctx: _Context, node: Node) -> BSDF:
     if kind == "diffuse":
         rho = np.broadcast_to(np.asarray(props.get("reflectance", 0.5), float), 3)
         if np.any(rho < 0) or np.any(rho > 1):
-            raise ctx.error(node, f"diffuse reflectance must lie in [0, 1], got {tuple(rho)}")
+            raise ctx.error(node, f"diffuse reflectance must lie in [0, 1], got {tuple(float(x) for x in rho)}")
         return BSDF("diffuse", tuple(float(x) for x in rho))
     if kind == "conductor":
         if props.get("material", "none") != "none":
@@ -339,7 +339,7 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
         value = _properties(ctx, em).get("radiance", np.ones(3))
         value = np.broadcast_to(np.asarray(value, float), 3)
         if np.any(value < 0):
-            raise ctx.error(em, f"radiance must be non-negative, got {tuple(value)}")
+            raise ctx.error(em, f"radiance must be non-negative, got {tuple(float(x) for x in value)}")
         radiance = tuple(float(x) for x in value)
     # Mitsuba's default: diffuse 0.5, but black on an emitter shape.
     bsdf = _bsdf(ctx, bsdfs[0]) if bsdfs else BSDF("diffuse", (0.0,) * 3 if radiance else (0.5,) * 3)
