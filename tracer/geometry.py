@@ -170,7 +170,7 @@ class SceneGeometry:
         if self.spheres:
             is_sphere = prim >= self.sphere_base
             center, radius = self._sphere_select(prim)
-            n = dr.select(is_sphere, (p - center) / radius, n)
+            n = dr.select(is_sphere, dr.normalize(p - center), n)  # unit even where p is off the surface
         ns = n
         if self.smooth:
             tri = prim - self.n_rects
