@@ -94,6 +94,8 @@ def parse_tree(path: Path) -> Node:
         parser.Parse(data, True)
     except expat.ExpatError as e:
         raise SceneError(f"{path}:{e.lineno}: malformed XML: {expat.ErrorString(e.code)}") from None
+    except LookupError as e:  # an unknown encoding in the XML declaration
+        raise SceneError(f"{path}:1: malformed XML: {e}") from None
     return root[0]
 
 
