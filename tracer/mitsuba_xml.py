@@ -265,7 +265,7 @@ def _transform_op(ctx: _Context, op: Node) -> np.ndarray:
     if any(len(p) != 3 for p in pts):
         raise ctx.error(op, "origin, target and up need 3 numbers each")
     o, t, u = (np.array(p) for p in pts)
-    if np.allclose(o, t) or np.linalg.norm(np.cross(t - o, u)) == 0:
+    if not np.any(t - o) or np.linalg.norm(np.cross(t - o, u)) == 0:  # exact: allclose is relative
         raise ctx.error(op, "degenerate lookat (origin equals target, or up is parallel to the view)")
     return transform.lookat(o, t, u)
 
