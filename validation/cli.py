@@ -1,5 +1,6 @@
 """`validate report SCENE.xml [--quick] [--size N]`: run (or resume) the sweeps and write the report;
-`validate reference SCENE.xml --max-depth D --size N`: render or load one cached Mitsuba reference."""
+`validate reference SCENE.xml --max-depth D --size N`: render or load one cached Mitsuba reference;
+`validate faults`: the table of injected faults the statistical test catches."""
 from __future__ import annotations
 
 import argparse
@@ -29,6 +30,8 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--size", type=int, default=128)
     f.add_argument("--passes", type=int, default=16)
     f.add_argument("--spp", type=int, default=64, help="samples per pixel of each pass")
+    q = sub.add_parser("faults", help="write reports/faults.md: which injected faults the test catches at which spp")
+    q.add_argument("--output", "-o", type=Path, default=Path("reports/faults.md"))
     return p
 
 
@@ -61,6 +64,11 @@ def _reference(args) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if args.command == "faults":
+        from .power import table
+
+        print(table(args.output))
+        return 0
     if not args.scene.is_file():
         print(f"validate: error: scene file '{args.scene}' not found", file=sys.stderr)
         return 2

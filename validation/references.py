@@ -18,6 +18,7 @@ import os
 import re
 import tempfile
 import time
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -90,7 +91,7 @@ def load(path: Path, key: str) -> Reference | None:
         with np.load(path) as z:
             meta = json.loads(str(z["meta"]))
             arrays = {name: z[name] for name in ("mean", "var", "blocks")}
-    except (OSError, ValueError, KeyError, EOFError):
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         return None
     if meta.get("key") != key or meta.get("sha256") != _digest(arrays):
         return None

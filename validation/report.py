@@ -184,8 +184,12 @@ def generate(scene_file: str | Path, out: Path | None = None, config: Config = C
     lines += _convergence_section(by_key, conv, out)
     lines += ["", f"## Error against depth ({config.sweep_size} x {config.sweep_size})", ""]
     lines += _depth_section(by_key, depth, ref_at, config, out)
-    lines += ["", "Welch's test: per 4 x 4 block and channel, Bonferroni-corrected, family-wise false-positive rate "
-              "1e-3 per run (validation/stats.py); `FAIL` means a bias the test resolves.", "",
+    mitsuba_rows = [r for r in by_key.values() if r["estimator"] == "mitsuba" and r["test"]]
+    false_alarms = sum(r["test"] == "FAIL" for r in mitsuba_rows)
+    lines += ["", "Welch's test: per 4 x 4 block and channel, Bonferroni-corrected, nominal family-wise false-positive "
+              "rate 1e-3 per run (validation/stats.py). Mitsuba against its own reference calibrates it: every "
+              f"Mitsuba `FAIL` is a false alarm, {false_alarms} of {len(mitsuba_rows)} runs here. The nominal rate "
+              "assumes normal pass means, which few samples per pixel in caustics do not give.", "",
               "## Machine and versions", ""] + _environment(command or " ".join(sys.argv))
     lines += ["", "All rows: `runs.csv` / `runs.json` beside this file."]
     (out / "README.md").write_text("\n".join(lines) + "\n")
