@@ -27,6 +27,7 @@ SUPPORTED = {
     "bsdf": ("diffuse", "twosided", "conductor", "dielectric"),
     "emitter": ("area",),
 }
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 PROPERTY_TAGS = ("integer", "float", "boolean", "string", "rgb", "point", "vector", "transform")
 TRANSFORM_OPS = ("translate", "scale", "rotate", "matrix", "lookat")
 
@@ -213,6 +214,8 @@ def _number(ctx: _Context, node: Node, text: str) -> float:
         raise ctx.error(node, f"'{text}' is not a number") from None
     if not math.isfinite(x):
         raise ctx.error(node, f"'{text}' is not a finite number")
+    if abs(x) > FLOAT32_MAX:  # the kernels compute in float32: this would become infinity there
+        raise ctx.error(node, f"'{text}' is out of the float32 range (|x| <= {FLOAT32_MAX:.4g})")
     return x
 
 
