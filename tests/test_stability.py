@@ -1,0 +1,73 @@
+"""The fast cases of the numerical-stability suite (validation/stability.py, mitsuba_scenes/stress/).
+
+Statistical cases run at family-wise false-positive rate ALPHA for this file (Bonferroni over its
+statistical cases); black and input cases are exact and have no false positives. The slow cases (the
+furnace near rho = 1, tiny lights, scaled rooms, glass against Mitsuba) run in
+`python -m validation.stability --report reports/stability.md`.
+"""
+import pytest
+
+import tracer
+from validation import stability
+
+ALPHA = 1e-3
+FAST = [c for c in stability.cases() if c.fast]
+CASE_ALPHA = ALPHA / sum(c.statistical for c in FAST)
+# Known failure, reported in reports/stability.md: a path vertex within ~1e-6 of an edge of the closed
+# tetrahedron can leave through the neighbouring face (its hit there has t <= 0 in float32); Mitsuba leaks
+# in the same scene too. strict: the test says so when the leak is fixed.
+KNOWN_LEAK = pytest.mark.xfail(strict=True, reason="float32 leak at tetrahedron edges (see reports/stability.md)")
+
+
+@pytest.mark.parametrize("case", [pytest.param(c, marks=KNOWN_LEAK) if c.name == "closed tetrahedron around the camera"
+                                  else c for c in FAST], ids=lambda c: c.name)
+def test_fast_case(case):
+    outcome = stability.run_case(case, CASE_ALPHA, mitsuba=False)
+    assert outcome.passed, f"{case.name}: ours {outcome.ours}, error {outcome.error}; {outcome.detail}"
+
+
+def test_exact_check_fails_on_a_biased_value():
+    """Power: the furnace check rejects an exact value 1% off (what a lost bounce or leak would cost)."""
+    case = next(c for c in FAST if c.name == "furnace rho=0.9 max_depth=5")
+    wrong = stability.Case(**{**case.__dict__, "exact": case.exact * 1.01})
+    assert not stability.run_case(wrong, CASE_ALPHA, mitsuba=False).passed
+
+
+def test_black_check_fails_when_the_light_is_inside():
+    """Power: the leak check sees light (the edge-on scene rendered from above the light is not black)."""
+    case = stability.Case("edge-on, camera moved", "lights", "stress/edge_on.xml", "black")
+    scene = tracer.load_scene(case.path, width=8, height=8)
+    scene.camera.to_world[2, 3] = 1.0   # lift the camera out of the light's plane
+    from tracer.render import render
+    assert render(scene, "path", spp=4, seed=0).image.max() > 0
+
+
+def test_furnace_formula():
+    assert stability.furnace_value(0.5, 1) == 1.0           # emission seen directly is depth 1
+    assert stability.furnace_value(0.5, 2) == 1.5
+    assert stability.furnace_value(0.999, -1) == pytest.approx(1000.0)
+
+
+@pytest.mark.parametrize("bad", ["nan", "1e39"])
+def test_bad_numbers_are_refused_or_render_clean(bad):
+    """Every number of stress/bad_number_base.xml replaced in turn: one-line refusal or a clean image."""
+    result = stability.bad_number_sweep(only=(bad,))[bad]
+    assert not result["failed"], result["failed"][:5]
+    assert result["refused"] > 0
+
+
+def test_scaled_rooms_are_up_to_date():
+    text = (stability.SCENES / "hexagon_room.xml").read_text()
+    for fname, (op, scale) in stability._SCALED_OPS.items():
+        assert (stability.STRESS / fname).read_text() == stability.scaled_room(text, op, scale), \
+            f"run python -m validation.stability --write-scenes ({fname} is stale)"
+
+
+@pytest.mark.xfail(strict=True, reason="known cracks: rays aimed exactly at shared edges and corners slip "
+                   "between float32 rectangle bounds and Moeller-Trumbore triangles (reports/stability.md)")
+@pytest.mark.parametrize("scene_name", stability.LEAK_SCENES)
+def test_rays_through_shared_edges_and_vertices_hit(scene_name):
+    """Rays from inside a closed enclosure aimed exactly at its corners and along its edges must hit it:
+    a miss is a crack a path could leak through."""
+    missed, total = stability.edge_ray_misses(scene_name)
+    assert missed == 0, f"{missed} of {total} rays through edges/vertices slipped through the enclosure"
