@@ -485,7 +485,7 @@ def run(selected: list[Case], mitsuba: bool = True, progress=print) -> list[Outc
     outcomes = []
     for case in selected:
         o = run_case(case, alpha, mitsuba)
-        progress(f"{'PASS' if o.passed else 'FAIL'}  {case.name}: ref {o.reference}, ours {o.ours}, "
+        progress(f"{('PASS' if o.passed else 'FAIL') if case.graded else 'INFO'}  {case.name}: ref {o.reference}, ours {o.ours}, "
                  f"err {o.error}, Mitsuba {o.mitsuba} ({o.mitsuba_error}) [{o.seconds:.1f} s] {o.detail}")
         outcomes.append(o)
     return outcomes
@@ -558,7 +558,11 @@ def write_report(path: Path, outcomes: list[Outcome], sweep: dict, sweep_seconds
     lines += [f"- {o.case.name}: {o.detail or o.ours}" for o in failed] or ["None."]
     if any(m for m, _ in crack_counts):
         lines.append("- cracks: rays aimed exactly at shared edges and corners escape the closed enclosures "
-                     "(table above); float32 rectangle bounds and Moeller-Trumbore triangles are not watertight.")
+                     "(table above); float32 rectangle bounds and Moeller-Trumbore triangles are not watertight. "
+                     "Measured remedy, not applied: edge tests conservative by 2^-20 (|local| <= 1 + 2^-20, "
+                     "b >= -2^-20) let no aimed ray escape and removed the tetrahedron's leaking paths, but "
+                     "tests/test_intersect.py specifies exact bounds (a ray one float outside a rectangle "
+                     "misses); a watertight triangle test (Woop et al. 2013) is the principled fix.")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n")
 
