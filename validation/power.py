@@ -17,7 +17,7 @@ from .stats import welch_test
 ALPHA = 1e-3     # family-wise false-positive rate of one comparison
 PASSES = 16
 SIZE = 32
-SPPS = (1, 4, 16, 64)               # per pass, path estimator and Mitsuba
+SPPS = (4, 16, 64, 256)              # per pass, path estimator and Mitsuba
 REPORT = dict(direct=4, indirect=4)  # report estimator: spp per pass is spp // 32 (at least 1)
 
 
