@@ -11,11 +11,13 @@ import drjit as dr
 import numpy as np
 
 from . import intersect
+from .bvh import BVHKernel
 from .jit import INF, NO_PRIM, Array3f, Bool, Float, UInt32, vec3
 from .sampling import square_to_uniform_triangle
 from .scene import BSDF, Mesh, Rectangle, Scene
 
 DIFFUSE, CONDUCTOR, DIELECTRIC = 0, 1, 2
+BVH_THRESHOLD = 400  # triangles above which a BVH beats the unrolled brute-force tests (measured crossover)
 _KIND_CODE = {"diffuse": DIFFUSE, "conductor": CONDUCTOR, "dielectric": DIELECTRIC}
 
 
@@ -66,6 +68,7 @@ class SceneGeometry:
         self.kinds = {_KIND_CODE[b.kind] for b in self.materials}
         self.emitters = scene.emitters
         self.smooth = any(m.normals is not None for m in scene.meshes)
+        self.bvh = BVHKernel(self.tri_vertices, self.n_rects) if self.n_tris > BVH_THRESHOLD else None
         self._build_tables()
 
     # ---- host-side tables, gathered by primitive index -------------------------------------------
@@ -125,34 +128,38 @@ class SceneGeometry:
         """Nearest hit along o + t d, never on primitive `skip` (the one the ray leaves)."""
         t_best, prim = Float(t_max), UInt32(NO_PRIM)
         b1, b2 = Float(0), Float(0)
-        for i, (t, u, v) in enumerate(self._candidates(o, d, t_min, skip)):
+        for i, t, u, v in self._candidates(o, d, t_min, skip):
             closer = t < t_best
             t_best = dr.select(closer, t, t_best)
             prim = dr.select(closer, i, prim)
             if u is not None:
                 b1, b2 = dr.select(closer, u, b1), dr.select(closer, v, b2)
+        if self.bvh is not None:
+            t_best, prim, b1, b2 = self.bvh.closest_hit(o, d, t_min, t_best, prim, b1, b2, skip)
         return Hit(t_best, prim, b1, b2)
 
     def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32) -> Bool:
         """Whether anything but `skip` and `target` lies on the segment o + t d, 0 < t < dist."""
         blocked = Bool(False)
-        for i, (t, _, _) in enumerate(self._candidates(o, d, 0.0, skip, target)):
+        for _, t, _, _ in self._candidates(o, d, 0.0, skip, target):
             blocked |= t < dist
+        if self.bvh is not None:
+            blocked |= self.bvh.occluded(o, d, dr.select(blocked, 0.0, dist), skip, target)
         return blocked
 
     def _candidates(self, o, d, t_min, skip, target=None):
-        """Per primitive: (t, b1, b2) of its hit, t = inf on a miss or for an excluded primitive."""
+        """Per primitive: (index, t, b1, b2) of its hit, t = inf on a miss or for an excluded primitive."""
         for i, r in enumerate(self.rects):
             du, dv = r.dual_edges
             t = intersect.ray_rectangle(o, d, vec3(r.center), vec3(du), vec3(dv), vec3(r.normal), t_min, INF)
-            yield self._exclude(t, i, skip, target), None, None
-        for j, v in enumerate(self.tri_vertices):
+            yield i, self._exclude(t, i, skip, target), None, None
+        for j, v in enumerate(self.tri_vertices if self.bvh is None else ()):
             t, b1, b2 = intersect.ray_triangle(o, d, vec3(v[0]), vec3(v[1] - v[0]), vec3(v[2] - v[0]), t_min, INF)
-            yield self._exclude(t, self.n_rects + j, skip, target), b1, b2
+            yield self.n_rects + j, self._exclude(t, self.n_rects + j, skip, target), b1, b2
         for k, s in enumerate(self.spheres):
             i = self.sphere_base + k
             t = intersect.ray_sphere(o, d, vec3(s.center), s.radius, t_min, INF, skip == i)
-            yield (t if target is None else dr.select(target == i, INF, t)), None, None
+            yield i, (t if target is None else dr.select(target == i, INF, t)), None, None
 
     @staticmethod
     def _exclude(t, i, skip, target):
@@ -256,8 +263,9 @@ class SceneGeometry:
 
     def describe(self) -> list[str]:
         """What the traced kernel contains, for `tracer info`."""
+        tris = "in a BVH" if self.bvh is not None else "brute force"
         lines = [f"intersection: {self.n_rects} rectangles (ray-plane, eq. 2-4), {self.n_tris} triangles "
-                 f"(Moeller-Trumbore), {len(self.spheres)} spheres (quadratic)"]
+                 f"(Moeller-Trumbore, {tris}), {len(self.spheres)} spheres (quadratic)"]
         lines.append(f"shading normals: {'interpolated on smooth meshes' if self.smooth else 'geometric only'}")
         lines.append(f"materials: {', '.join(sorted({b.kind for b in self.materials}))}")
         lines.append(f"light sampling: {len(self.emitters)} area light(s)")

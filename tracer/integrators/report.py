@@ -88,20 +88,31 @@ def _gather_surface(surf: Surface, lane: UInt32) -> Surface:
 
 
 def _shadow_rays(geo, surf, ns, diffuse, wave, n_direct, image, seed) -> int:
-    """Eq. 10 at every diffuse vertex: N shadow rays, their mean splatted with the vertex's weight."""
+    """Eq. 10 at every diffuse vertex: the mean of N shadow rays, splatted with the vertex's weight."""
     vertices = dr.compress(diffuse)
-    count = dr.width(vertices) * n_direct
+    count = dr.width(vertices)
     if count == 0:
         return 0
-    lane = dr.gather(UInt32, vertices, dr.arange(UInt32, count) // n_direct)
-    sub = _gather_surface(surf, lane)
-    rng = _rng(count, seed, 1)
-    ds = sample_direct(geo, sub, dr.gather(Array3f, ns, lane), geo.albedo(sub.material, True),
-                       rng.next_float32(), rng.next_float32(), rng.next_float32(), Bool(True))
-    weight = dr.gather(Array3f, wave.weight, lane) * (1.0 / n_direct)
-    dr.scatter_add(image, weight * ds.value, dr.gather(UInt32, wave.pixel, lane))
+    sub = _gather_surface(surf, vertices)
+    estimate = direct_estimate(geo, sub, dr.gather(Array3f, ns, vertices), geo.albedo(sub.material, True),
+                               _rng(count, seed, 1), n_direct)
+    weight = dr.gather(Array3f, wave.weight, vertices)
+    dr.scatter_add(image, weight * estimate, dr.gather(UInt32, wave.pixel, vertices))
     dr.eval(image)
-    return count
+    return count * n_direct
+
+
+@dr.syntax
+def direct_estimate(geo: SceneGeometry, surf: Surface, ns: Array3f, albedo: Array3f, rng: PCG32,
+                    n_direct: int) -> Array3f:
+    """Eq. 10: (1/N) sum of f Le cos_x cos_y / (d^2 pdf) over N shadow rays, looped within each lane."""
+    total, i = Array3f(0.0), UInt32(0)
+    while i < n_direct:
+        ds = sample_direct(geo, surf, ns, albedo, rng.next_float32(), rng.next_float32(), rng.next_float32(),
+                           Bool(True))
+        total += ds.value
+        i += 1
+    return total * (1.0 / n_direct)
 
 
 def hemisphere_sample(albedo: Array3f, u1: Float, u2: Float, hemisphere: str) -> tuple[Array3f, Array3f]:
