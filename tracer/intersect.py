@@ -1,10 +1,17 @@
 """Ray-primitive intersections (the report's section 2.3). Each returns the ray parameter t, inf on a miss.
 
 Directions are unit vectors; t_min/t_max bound the accepted hits.
+
+Edge tests are conservative by EDGE_MARGIN (in the primitive's own coordinates: barycentrics, or the
+rectangle's [-1, 1]): float32 rounding computes a shared edge differently in each neighbour, and an
+exact test lets rays aimed at the edge slip between them (a crack that light leaks through). The
+margin grows each primitive by 1e-6 of its size, far below any image's resolution.
 """
 import drjit as dr
 
 from .jit import INF, Array3f, Bool, Float
+
+EDGE_MARGIN = 2.0 ** -20
 
 
 def ray_rectangle(o: Array3f, d: Array3f, center, du, dv, n, t_min, t_max) -> Float:
@@ -16,7 +23,8 @@ def ray_rectangle(o: Array3f, d: Array3f, center, du, dv, n, t_min, t_max) -> Fl
     cos_nd = dr.dot(n, d)                                        # eq. 2
     t = dr.dot(n, center - o) / cos_nd                           # eq. 3
     rel = dr.fma(d, t, o) - center                               # eq. 4, relative to the centre
-    inside = (dr.abs(dr.dot(rel, du)) <= 1.0) & (dr.abs(dr.dot(rel, dv)) <= 1.0)
+    bound = 1.0 + EDGE_MARGIN
+    inside = (dr.abs(dr.dot(rel, du)) <= bound) & (dr.abs(dr.dot(rel, dv)) <= bound)
     hit = (cos_nd != 0) & inside & (t > t_min) & (t < t_max)
     return dr.select(hit, t, INF)
 
@@ -24,8 +32,8 @@ def ray_rectangle(o: Array3f, d: Array3f, center, du, dv, n, t_min, t_max) -> Fl
 def ray_triangle(o: Array3f, d: Array3f, v0, e1, e2, t_min, t_max) -> tuple[Float, Float, Float]:
     """Moeller-Trumbore: t and the barycentrics (b1, b2) of v1 = v0 + e1 and v2 = v0 + e2.
 
-    Points on edges and vertices count as inside (b >= 0), so a ray through a shared edge hits a
-    neighbour; a ray in the triangle's plane (det = 0) misses.
+    Points on edges and vertices count as inside (up to EDGE_MARGIN), so a ray through a shared edge
+    hits a neighbour; a ray in the triangle's plane (det = 0) misses.
     """
     pvec = dr.cross(d, e2)
     det = dr.dot(e1, pvec)
@@ -35,7 +43,8 @@ def ray_triangle(o: Array3f, d: Array3f, v0, e1, e2, t_min, t_max) -> tuple[Floa
     qvec = dr.cross(tvec, e1)
     b2 = dr.dot(d, qvec) * inv_det
     t = dr.dot(e2, qvec) * inv_det
-    hit = (det != 0) & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1) & (t > t_min) & (t < t_max)
+    inside = (b1 >= -EDGE_MARGIN) & (b2 >= -EDGE_MARGIN) & (b1 + b2 <= 1.0 + EDGE_MARGIN)
+    hit = (det != 0) & inside & (t > t_min) & (t < t_max)
     return dr.select(hit, t, INF), b1, b2
 
 

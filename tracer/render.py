@@ -13,6 +13,7 @@ from .geometry import SceneGeometry
 from .integrators.path import path_radiance
 from .integrators.report import ReportSettings, Wavefront, trace_level
 from .jit import BACKEND, NO_PRIM, PCG32, Array3f, Bool, Float, UInt32, UInt64, opaque_u32
+from .sampling import seeded_rng
 from .scene import Scene
 
 ESTIMATORS = ("path", "report")
@@ -98,7 +99,7 @@ def _render_path(geo, scene, image, spp, seed, max_depth, progress) -> int:
     rays = 0
     for start, n in _chunks(scene.camera.width * scene.camera.height * spp, PATH_CHUNK, progress, "path"):
         sample = dr.arange(UInt32, n) + opaque_u32(start)
-        rng = PCG32(n, dr.opaque(UInt64, _seed_state(seed)), UInt64(sample))
+        rng = seeded_rng(sample, _seed_state(seed))
         o, d, t_min, t_max, pixel = primary_rays(scene.camera, sample, spp, rng)
         L, count = path_radiance(geo, o, d, t_min, t_max, rng, opaque_u32(depth), opaque_u32(scene.rr_depth))
         dr.scatter_add(image, L, pixel)
@@ -115,7 +116,7 @@ def _render_report(geo, scene, image, spp, seed, max_depth, settings, progress) 
     for index, (start, n) in enumerate(_chunks(scene.camera.width * scene.camera.height * spp, chunk,
                                                progress, "report")):
         sample = dr.arange(UInt32, n) + opaque_u32(start)
-        rng = PCG32(n, dr.opaque(UInt64, _seed_state(seed, index)), UInt64(sample))
+        rng = seeded_rng(sample, _seed_state(seed, index))
         o, d, t_min, t_max, pixel = primary_rays(scene.camera, sample, spp, rng)
         wave = Wavefront(o, d, t_min, t_max, Array3f(1.0), pixel, UInt32(NO_PRIM), Bool(True))
         vertex = 1

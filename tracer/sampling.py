@@ -1,7 +1,7 @@
 """Warps from the unit square to the domains the estimators sample, with their densities."""
 import drjit as dr
 
-from .jit import Array3f, Float
+from .jit import PCG32, Array3f, Float, UInt32, UInt64
 
 INV_PI = 1.0 / dr.pi
 
@@ -51,3 +51,22 @@ def coordinate_system(n: Array3f) -> tuple[Array3f, Array3f]:
 def to_world(local: Array3f, n: Array3f) -> Array3f:
     s, t = coordinate_system(n)
     return s * local.x + t * local.y + n * local.z
+
+
+def tea(v0: UInt32, v1: UInt32, rounds: int = 4) -> tuple[UInt32, UInt32]:
+    """The tiny encryption algorithm as a hash (Zafar et al. 2010): decorrelates sequential seeds."""
+    s = 0
+    for _ in range(rounds):
+        s = (s + 0x9E3779B9) & 0xFFFFFFFF
+        v0 = v0 + (((v1 << 4) + 0xA341316C) ^ (v1 + s) ^ ((v1 >> 5) + 0xC8013EA4))
+        v1 = v1 + (((v0 << 4) + 0xAD90777D) ^ (v0 + s) ^ ((v0 >> 5) + 0x7E95761E))
+    return v0, v1
+
+
+def seeded_rng(index: UInt32, seed: int) -> PCG32:
+    """One independent PCG32 stream per index: the initial state is TEA(seed, index), as Mitsuba's
+    independent sampler does; consecutive indices with one fixed state would give correlated streams."""
+    key = dr.opaque(UInt32, seed % 2**32)
+    v0, v1 = tea(key, index)
+    state = UInt64(v0) | (UInt64(v1) << 32)
+    return PCG32(dr.width(index), state, UInt64(index))

@@ -16,7 +16,7 @@ import drjit as dr
 from ..bsdf import dielectric_interface, reflect
 from ..geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneGeometry, Surface
 from ..jit import NO_PRIM, PCG32, Array3f, Bool, Float, UInt32, UInt64
-from ..sampling import square_to_cosine_hemisphere, square_to_uniform_hemisphere, to_world
+from ..sampling import seeded_rng, square_to_cosine_hemisphere, square_to_uniform_hemisphere, to_world
 from .direct import facing_normal, sample_direct
 
 
@@ -78,7 +78,7 @@ def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int
 
 
 def _rng(n: int, seed: int, stream: int) -> PCG32:
-    return PCG32(n, dr.opaque(UInt64, (seed * 0x9E3779B97F4A7C15 + stream) % 2**64), dr.arange(UInt64, n))
+    return seeded_rng(dr.arange(UInt32, n), (seed * 0x9E3779B97F4A7C15 + stream) % 2**64)
 
 
 def _gather_surface(surf: Surface, lane: UInt32) -> Surface:
