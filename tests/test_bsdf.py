@@ -10,20 +10,7 @@ import pytest
 from tracer import bsdf
 from tracer.jit import Array3f, Float
 
-U = 2.0 ** -24
-
-
-def f32(x) -> np.ndarray:
-    return np.asarray(x, np.float32).astype(np.float64)
-
-
-def arr3(x) -> Array3f:
-    return Array3f(np.ascontiguousarray(np.atleast_2d(np.asarray(x, np.float32)).T))
-
-
-def unit(v) -> np.ndarray:
-    v = np.asarray(v, np.float64)
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+from .float32 import U, arr3, f32, unit  # noqa: E402
 
 
 def fresnel_ref(cos_i, eta):

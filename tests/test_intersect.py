@@ -17,23 +17,7 @@ from tracer.intersect import EDGE_MARGIN
 from tracer.jit import INF, NO_PRIM, Array3f, Bool, Float, UInt32, vec3
 from tracer.scene import BSDF, Rectangle
 
-U = 2.0 ** -24  # float32 unit roundoff
-
-
-# ---- helpers -----------------------------------------------------------------------------------------
-def f32(x) -> np.ndarray:
-    """The float32 value the kernel sees, back in float64 for exact reference arithmetic."""
-    return np.asarray(x, np.float32).astype(np.float64)
-
-
-def arr3(x) -> Array3f:
-    """(N, 3) NumPy array to an N-wide Array3f."""
-    return Array3f(np.ascontiguousarray(np.atleast_2d(np.asarray(x, np.float32)).T))
-
-
-def unit(v) -> np.ndarray:
-    v = np.asarray(v, np.float64)
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+from .float32 import U, arr3, f32, unit  # noqa: E402
 
 
 def rect(o, d, center, du, dv, n, t_min=0.0, t_max=INF) -> np.ndarray:

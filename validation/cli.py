@@ -30,6 +30,8 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--size", type=int, default=128)
     f.add_argument("--passes", type=int, default=16)
     f.add_argument("--spp", type=int, default=64, help="samples per pixel of each pass")
+    b = sub.add_parser("bench", help="time the tracer and Mitsuba side by side: reports/performance.md")
+    b.add_argument("--output", "-o", type=Path, default=Path("reports"))
     q = sub.add_parser("faults", help="write reports/faults.md: which injected faults the test catches at which spp")
     q.add_argument("--output", "-o", type=Path, default=Path("reports/faults.md"))
     return p
@@ -64,6 +66,11 @@ def _reference(args) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if args.command == "bench":
+        from .benchmark import run
+
+        print(run(args.output))
+        return 0
     if args.command == "faults":
         from .power import table
 

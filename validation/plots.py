@@ -71,3 +71,30 @@ def side_by_side(image: np.ndarray, reference: np.ndarray, title: str, path: Pat
     for ax in axes:
         ax.axis("off")
     _save(fig, path)
+
+
+def performance_scaling(curves: dict[str, list], path: Path) -> None:
+    """Render time against pixels, samples, depth and triangle count (log-log where it reads better)."""
+    fig, axes = plt.subplots(1, 4, figsize=(16, 3.8))
+    ax = axes[0]
+    x, y = zip(*curves["resolution"])
+    ax.loglog(x, y, "o-")
+    ax.set(xlabel="pixels", ylabel="render time [s]", title="path, 16 spp, max_depth 5")
+    ax = axes[1]
+    x, y = zip(*curves["spp"])
+    ax.loglog(x, y, "o-")
+    ax.set(xlabel="samples per pixel", title="path, 300 x 300, max_depth 5")
+    ax = axes[2]
+    labels = [("∞" if d < 0 else str(d)) for d, _ in curves["max_depth"]]
+    ax.plot(labels, [t for _, t in curves["max_depth"]], "o-")
+    ax.set(xlabel="max_depth", title="path, 300 x 300, 16 spp")
+    ax = axes[3]
+    for kind in ("bvh", "brute force"):
+        pts = [(n, t) for k, n, t in curves["triangles"] if k == kind]
+        if pts:
+            ax.loglog(*zip(*pts), "o-", label=kind)
+    ax.set(xlabel="triangles", title="path, 256 x 256, 16 spp, Cornell box")
+    ax.legend(fontsize=8)
+    for ax in axes:
+        ax.grid(True, which="both", alpha=0.3)
+    _save(fig, path)
