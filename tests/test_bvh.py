@@ -43,6 +43,7 @@ def test_bvh_matches_brute_force(monkeypatch, skip_prim):
     h2 = bvh.closest_hit(o, d, 0.0, float("inf"), skip)
     np.testing.assert_array_equal(h1.prim.numpy(), h2.prim.numpy())
     np.testing.assert_array_equal(h1.t.numpy(), h2.t.numpy())
+    brute.occluders = bvh.occluders = set(range(brute.n_prims))  # random segments: every occluder counts
     dist = Float(np.random.default_rng(2).uniform(0.1, 8, 4000))
     np.testing.assert_array_equal(brute.occluded(o, d, dist, skip, UInt32(NO_PRIM)).numpy(),
                                   bvh.occluded(o, d, dist, skip, UInt32(NO_PRIM)).numpy())

@@ -69,6 +69,7 @@ class SceneGeometry:
         self.emitters = scene.emitters
         self.smooth = any(m.normals is not None for m in scene.meshes)
         self.bvh = BVHKernel(self.tri_vertices, self.n_rects) if self.n_tris > BVH_THRESHOLD else None
+        self.occluders = self._possible_occluders()
         self._build_tables()
 
     # ---- host-side tables, gathered by primitive index -------------------------------------------
@@ -123,6 +124,32 @@ class SceneGeometry:
                 ranges.append((starts[id(e)], starts[id(e)] + len(e.faces)))
         return ranges
 
+    def _possible_occluders(self) -> set[int]:
+        """Primitives that can block a shadow ray. A shadow ray joins two points of the scene, so a planar
+        primitive with the whole scene on one side of its plane (a wall of a convex room) never lies
+        strictly between its ends: such primitives are left out of the shadow-ray kernel."""
+        points = [self.tri_vertices.reshape(-1, 3)]
+        points += [r.center + a * e1 + b * e2 for r in self.rects for e1, e2 in [r.edges]
+                   for a in (-1, 1) for b in (-1, 1)]
+        points = np.vstack([np.atleast_2d(p) for p in points if np.size(p)]) if any(np.size(p) for p in points) \
+            else np.zeros((0, 3))
+        eps = 1e-6 * self.scene.extent()
+        planes = [(r.center, r.normal) for r in self.rects]
+        planes += [(v[0], n) for v, n in zip(self.tri_vertices, self._face_normals())]
+        keep = set(range(self.sphere_base, self.n_prims))
+        for i, (p0, n) in enumerate(planes):
+            side = (points - p0) @ n
+            side = np.concatenate([side] + [[(s.center - p0) @ n - s.radius, (s.center - p0) @ n + s.radius]
+                                            for s in self.spheres])
+            if not (np.all(side >= -eps) or np.all(side <= eps)):
+                keep.add(i)
+        return keep
+
+    def _face_normals(self) -> np.ndarray:
+        v = self.tri_vertices
+        n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
     # ---- ray queries ------------------------------------------------------------------------------
     def closest_hit(self, o: Array3f, d: Array3f, t_min, t_max, skip: UInt32) -> Hit:
         """Nearest hit along o + t d, never on primitive `skip` (the one the ray leaves)."""
@@ -141,19 +168,24 @@ class SceneGeometry:
     def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32) -> Bool:
         """Whether anything but `skip` and `target` lies on the segment o + t d, 0 < t < dist."""
         blocked = Bool(False)
-        for _, t, _, _ in self._candidates(o, d, 0.0, skip, target):
+        for i, t, _, _ in self._candidates(o, d, 0.0, skip, target, self.occluders):
             blocked |= t < dist
         if self.bvh is not None:
             blocked |= self.bvh.occluded(o, d, dr.select(blocked, 0.0, dist), skip, target)
         return blocked
 
-    def _candidates(self, o, d, t_min, skip, target=None):
-        """Per primitive: (index, t, b1, b2) of its hit, t = inf on a miss or for an excluded primitive."""
+    def _candidates(self, o, d, t_min, skip, target=None, only=None):
+        """Per primitive (of `only`, if given): (index, t, b1, b2) of its hit, t = inf on a miss or for an
+        excluded primitive."""
         for i, r in enumerate(self.rects):
+            if only is not None and i not in only:
+                continue
             du, dv = r.dual_edges
             t = intersect.ray_rectangle(o, d, vec3(r.center), vec3(du), vec3(dv), vec3(r.normal), t_min, INF)
             yield i, self._exclude(t, i, skip, target), None, None
         for j, v in enumerate(self.tri_vertices if self.bvh is None else ()):
+            if only is not None and self.n_rects + j not in only:
+                continue
             t, b1, b2 = intersect.ray_triangle(o, d, vec3(v[0]), vec3(v[1] - v[0]), vec3(v[2] - v[0]), t_min, INF)
             yield self.n_rects + j, self._exclude(t, self.n_rects + j, skip, target), b1, b2
         for k, s in enumerate(self.spheres):
