@@ -28,15 +28,26 @@ def test_culled_occluders_change_no_shadow_ray_between_scene_points():
     d = rng.normal(size=(n, 3))
     d = Array3f(*(d / np.linalg.norm(d, axis=1, keepdims=True)).T)
     none = UInt32(0xFFFFFFFF)
-    start = culled.closest_hit(o, d, 0.0, float("inf"), none)        # a point on a surface
-    ok = start.valid.numpy() & np.isfinite(start.t.numpy())
-    p = o + d * start.t
-    d2 = rng.normal(size=(n, 3))
-    d2 = Array3f(*(d2 / np.linalg.norm(d2, axis=1, keepdims=True)).T)
-    end = culled.closest_hit(p, d2, 0.0, float("inf"), start.prim)  # ... and the next one it sees
-    ok &= end.valid.numpy()
-    dist = end.t * Float(0.999)
-    a = culled.occluded(p, d2, dist, start.prim, end.prim).numpy()
-    b = full.occluded(p, d2, dist, start.prim, end.prim).numpy()
-    assert ok.sum() > n // 2
-    np.testing.assert_array_equal(a[ok], b[ok])
+    hit = culled.closest_hit(o, d, 0.0, float("inf"), none)          # points on the room's surfaces
+    ok = hit.valid.numpy()
+    p = (o + d * hit.t).numpy().T[ok]
+    prim = hit.prim.numpy()[ok]
+    half = len(p) // 2
+    x, y = p[:half], p[half:2 * half]                                 # segments between pairs of them
+    seg = y - x
+    dist = np.linalg.norm(seg, axis=1)
+    w = Array3f(*(seg / dist[:, None]).T)
+    args = (Array3f(*x.T), w, Float(dist), UInt32(prim[:half]), UInt32(prim[half:2 * half]))
+    a = culled.occluded(*args).numpy()
+    b = full.occluded(*args).numpy()
+    assert 0.1 < b.mean() < 0.9                                       # both blocked and free segments
+    # They may differ only for segments lying in a culled primitive's plane (two points on the floor):
+    # the full test then reports a rounding-level graze of a coplanar neighbour, the culled one cannot.
+    planes = [(r.center, r.normal) for r in culled.rects]
+    planes += [(v[0], n) for v, n in zip(culled.tri_vertices, culled._face_normals())]
+    culled_planes = [pl for i, pl in enumerate(planes) if i not in culled.occluders]
+    in_plane = np.zeros(half, bool)
+    for p0, n in culled_planes:
+        in_plane |= (np.abs((x - p0) @ n) < 1e-5) & (np.abs((y - p0) @ n) < 1e-5)
+    differ = a != b
+    assert not np.any(differ & ~in_plane), np.flatnonzero(differ & ~in_plane)
