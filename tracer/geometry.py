@@ -135,7 +135,8 @@ class SceneGeometry:
             else np.zeros((0, 3))
         eps = 1e-6 * self.scene.extent()
         planes = [(r.center, r.normal) for r in self.rects]
-        planes += [(v[0], n) for v, n in zip(self.tri_vertices, self._face_normals())]
+        if self.bvh is None:  # BVH triangles are all tested; only the unrolled ones are worth culling
+            planes += [(v[0], n) for v, n in zip(self.tri_vertices, self._face_normals())]
         keep = set(range(self.sphere_base, self.n_prims))
         for i, (p0, n) in enumerate(planes):
             side = (points - p0) @ n
