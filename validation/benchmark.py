@@ -141,7 +141,7 @@ def ceiling(progress) -> dict:
         "d = rng.normal(size=(n, 3)); d /= np.linalg.norm(d, axis=1, keepdims=True); d = Array3f(*d.T)\n"
         "dr.eval(o, d); ts = []\n"
         "for _ in range(4):\n"
-        "    t = time.perf_counter(); h = g.closest_hit(o, d, 0.0, float('inf'), UInt32(NO_PRIM)); dr.eval(h.t, h.prim)\n"
+        "    t = time.perf_counter(); h = g.closest_hit(o, d, 0.0, float('inf'), UInt32(NO_PRIM)); dr.eval(h.t, h.prim); dr.sync_thread()\n"
         "    ts.append(time.perf_counter() - t)\n"
         "print(n / sorted(ts[1:])[1])\n")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
