@@ -1,4 +1,4 @@
-"""Pinhole camera with Mitsuba's `perspective` conventions and a box pixel filter."""
+"""Pinhole camera with Mitsuba's `perspective` conventions."""
 from __future__ import annotations
 
 import drjit as dr
@@ -8,13 +8,13 @@ from .jit import Array3f, Float, PCG32, UInt32, vec3
 from .scene import Camera
 
 
-def primary_rays(camera: Camera, sample: UInt32, spp: int, rng: PCG32):
-    """Rays for flat sample indices (pixel * spp + k), jittered uniformly inside their pixel.
+def primary_rays(camera: Camera, pixel: UInt32, rng: PCG32):
+    """Rays through film positions jittered uniformly inside their pixel (pixel = y * width + x).
 
     Local +z looks forward, +x left and +y up, so pixel (0, 0) is the top-left one, as in Mitsuba.
-    Returns (origin, direction, t_min, t_max, pixel); t_min/t_max are the near and far clip planes.
+    Returns (origin, direction, t_min, t_max, x, y): t_min/t_max are the near and far clip planes,
+    (x, y) the film position in pixels, where the film splats the sample.
     """
-    pixel = sample // spp
     x = Float(pixel % camera.width) + rng.next_float32()
     y = Float(pixel // camera.width) + rng.next_float32()
     tan_x, tan_y = camera.tan_half_fov()
@@ -24,7 +24,7 @@ def primary_rays(camera: Camera, sample: UInt32, spp: int, rng: PCG32):
     d = dr.normalize(vec3(m[:3, 0]) * local.x + vec3(m[:3, 1]) * local.y + vec3(m[:3, 2]) * local.z)
     o = vec3(m[:3, 3]) + Array3f(0.0) * local.x  # broadcast to the wavefront's width
     inv_z = dr.rcp(local.z)
-    return o, d, camera.near_clip * inv_z, camera.far_clip * inv_z, pixel
+    return o, d, camera.near_clip * inv_z, camera.far_clip * inv_z, x, y
 
 
 def pixel_count(camera: Camera) -> int:

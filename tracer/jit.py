@@ -22,7 +22,8 @@ def _pick_backend():
 
 
 _backend, BACKEND = _pick_backend()
-Float, UInt32, UInt64, Bool = _backend.Float, _backend.UInt32, _backend.UInt64, _backend.Bool
+Float, UInt32, UInt64, Int32, Bool = (_backend.Float, _backend.UInt32, _backend.UInt64, _backend.Int32,
+                                     _backend.Bool)
 Array3f, PCG32 = _backend.Array3f, _backend.PCG32
 
 INF = float("inf")

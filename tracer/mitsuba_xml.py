@@ -15,13 +15,14 @@ import numpy as np
 
 from . import transform
 from .meshes import MeshError, read_obj, vertex_normals
+from .film import ReconstructionFilter
 from .scene import BSDF, Camera, Mesh, Rectangle, Scene, SceneError, Sphere
 
 SUPPORTED = {
     "integrator": ("path",),
     "sensor": ("perspective",),
     "film": ("hdrfilm",),
-    "rfilter": ("box",),
+    "rfilter": ("box", "gaussian", "tent"),
     "sampler": ("independent",),
     "shape": ("rectangle", "sphere", "obj"),
     "bsdf": ("diffuse", "twosided", "conductor", "dielectric"),
@@ -280,10 +281,8 @@ def _camera(ctx: _Context, node: Node) -> tuple[Camera, dict]:
         if child.tag == "film":
             _check_type(ctx, child)
             for rf in (c for c in child.children if c.tag == "rfilter"):
-                _check_type(ctx, rf)
+                film["rfilter"] = _rfilter(ctx, rf)
             film.update(_properties(ctx, child, allowed_children=("rfilter",)))
-            if not any(c.tag == "rfilter" for c in child.children):
-                raise ctx.error(child, "hdrfilm needs <rfilter type=\"box\"/> (Mitsuba's default Gaussian filter is not supported)")
         elif child.tag == "sampler":
             _check_type(ctx, child)
             sampler = _properties(ctx, child)
@@ -297,8 +296,23 @@ def _camera(ctx: _Context, node: Node) -> tuple[Camera, dict]:
     if w < 1 or h < 1:
         raise ctx.error(node, f"film size must be positive, got {w} x {h}")
     camera = Camera(props.get("to_world", np.eye(4)), fov, fov_axis, float(props.get("near_clip", 1e-2)),
-                    float(props.get("far_clip", 1e4)), w, h)
+                    float(props.get("far_clip", 1e4)), w, h, film.get("rfilter", ReconstructionFilter("gaussian")))
     return camera, sampler
+
+
+def _rfilter(ctx: _Context, node: Node) -> ReconstructionFilter:
+    kind = _check_type(ctx, node)
+    props = _properties(ctx, node)
+    allowed = {"box": (), "gaussian": ("stddev",), "tent": ("radius",)}[kind]
+    for name in props:
+        if name not in allowed:
+            raise ctx.error(node, f"rfilter '{kind}' has no property '{name}'; supported: {', '.join(allowed) or 'none'}")
+    value = float(props.get(allowed[0], 0.5 if kind == "gaussian" else 1.0)) if allowed else 0.0
+    if allowed and not 0 < value <= 8:
+        raise ctx.error(node, f"rfilter '{kind}' {allowed[0]} must lie in (0, 8] pixels, got {value}")
+    if kind == "gaussian":
+        return ReconstructionFilter("gaussian", stddev=value)
+    return ReconstructionFilter("tent", tent_radius=value) if kind == "tent" else ReconstructionFilter("box")
 
 
 def _bsdf(ctx: _Context, node: Node) -> BSDF:

@@ -9,6 +9,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .camera import primary_rays
+from .film import Film, ReconstructionFilter
 from .geometry import SceneGeometry
 from .integrators.path import path_radiance
 from .integrators.report import ReportSettings, Wavefront, trace_level
@@ -44,8 +45,8 @@ class RenderResult:
 
 def render(scene: Scene, estimator: str = "path", spp: int | None = None, seed: int | None = None,
            max_depth: int | None = None, direct: int = 16, indirect: int = 8, hemisphere: str = "cosine",
-           progress: bool = False) -> RenderResult:
-    """Renders `scene`; unset arguments take the scene file's values (spp, seed, max_depth)."""
+           rfilter: ReconstructionFilter | None = None, progress: bool = False) -> RenderResult:
+    """Renders `scene`; unset arguments take the scene file's values (spp, seed, max_depth, rfilter)."""
     if estimator not in ESTIMATORS:
         raise ValueError(f"unknown estimator '{estimator}'; choose one of {', '.join(ESTIMATORS)}")
     spp = scene.spp if spp is None else spp
@@ -57,21 +58,20 @@ def render(scene: Scene, estimator: str = "path", spp: int | None = None, seed: 
         raise ValueError(f"max_depth must be -1 (unbounded) or >= 0, got {max_depth}")
     geo = SceneGeometry(scene)
     cam = scene.camera
-    n_pixels = cam.width * cam.height
-    image = dr.zeros(Float, n_pixels * 3)
+    film = Film(cam.width, cam.height, cam.rfilter if rfilter is None else rfilter)
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     dr.kernel_history()  # clear
     start = time.perf_counter()
     if estimator == "path":
-        rays, settings = _render_path(geo, scene, image, spp, seed, max_depth, progress), {}
+        rays, settings = _render_path(geo, scene, film, spp, seed, max_depth, progress), {}
     else:
         report = ReportSettings(direct, indirect, hemisphere)
         if max_depth < 0:
             raise ValueError("the report estimator branches at every bounce: it needs a finite max_depth")
-        rays = _render_report(geo, scene, image, spp, seed, max_depth, report, progress)
+        rays = _render_report(geo, scene, film, spp, seed, max_depth, report, progress)
         settings = {"direct": direct, "indirect": indirect, "hemisphere": hemisphere,
                     "report_depth": max_depth - 2}
-    pixels = (image / spp).numpy().reshape(cam.height, cam.width, 3).astype(np.float32)
+    pixels = film.develop()
     seconds = time.perf_counter() - start
     compile_s = sum(k.get("codegen_time", 0) + k.get("backend_time", 0) for k in dr.kernel_history()) / 1000
     dr.set_flag(dr.JitFlag.KernelHistory, False)
@@ -94,22 +94,22 @@ def _seed_state(seed: int, *stream: int) -> int:
     return h
 
 
-def _render_path(geo, scene, image, spp, seed, max_depth, progress) -> int:
+def _render_path(geo, scene, film, spp, seed, max_depth, progress) -> int:
     depth = 0xFFFFFFFF if max_depth < 0 else max_depth
     rays = 0
     for start, n in _chunks(scene.camera.width * scene.camera.height * spp, PATH_CHUNK, progress, "path"):
         sample = dr.arange(UInt32, n) + opaque_u32(start)
         rng = seeded_rng(sample, _seed_state(seed))
-        o, d, t_min, t_max, pixel = primary_rays(scene.camera, sample, spp, rng)
+        o, d, t_min, t_max, x, y = primary_rays(scene.camera, sample // spp, rng)
         L, count = path_radiance(geo, o, d, t_min, t_max, rng, opaque_u32(depth), opaque_u32(scene.rr_depth))
-        dr.scatter_add(image, L, pixel)
+        film.put(x, y, L)
         total = dr.sum(count)
-        dr.eval(image, total)
+        dr.eval(film.data, total)
         rays += int(total[0])
     return rays
 
 
-def _render_report(geo, scene, image, spp, seed, max_depth, settings, progress) -> int:
+def _render_report(geo, scene, film, spp, seed, max_depth, settings, progress) -> int:
     widest = settings.slots ** max(max_depth - 2, 0) * settings.direct
     chunk = max(1, REPORT_BUDGET // widest)
     rays = 0
@@ -117,12 +117,16 @@ def _render_report(geo, scene, image, spp, seed, max_depth, settings, progress) 
                                                progress, "report")):
         sample = dr.arange(UInt32, n) + opaque_u32(start)
         rng = seeded_rng(sample, _seed_state(seed, index))
-        o, d, t_min, t_max, pixel = primary_rays(scene.camera, sample, spp, rng)
-        wave = Wavefront(o, d, t_min, t_max, Array3f(1.0), pixel, UInt32(NO_PRIM), Bool(True))
+        o, d, t_min, t_max, x, y = primary_rays(scene.camera, sample // spp, rng)
+        dr.eval(x, y)
+        radiance = dr.zeros(Float, n * 3)
+        wave = Wavefront(o, d, t_min, t_max, Array3f(1.0), dr.arange(UInt32, n), UInt32(NO_PRIM), Bool(True))
         vertex = 1
-        while wave is not None and vertex <= max(max_depth, 0) :
-            wave, traced = trace_level(geo, wave, vertex, max_depth, settings, image,
+        while wave is not None and vertex <= max(max_depth, 0):
+            wave, traced = trace_level(geo, wave, vertex, max_depth, settings, radiance,
                                        _seed_state(seed, index, vertex))
             rays += traced
             vertex += 1
+        film.put(x, y, dr.gather(Array3f, radiance, dr.arange(UInt32, n)))
+        dr.eval(film.data)
     return rays

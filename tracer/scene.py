@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .film import ReconstructionFilter
+
 from . import transform
 
 
@@ -94,7 +96,7 @@ class Mesh:
 
 @dataclass
 class Camera:
-    """Mitsuba's `perspective` sensor with an `hdrfilm` and a box reconstruction filter."""
+    """Mitsuba's `perspective` sensor with an `hdrfilm` and its reconstruction filter."""
 
     to_world: np.ndarray
     fov: float = 90.0
@@ -103,6 +105,7 @@ class Camera:
     far_clip: float = 1e4
     width: int = 768
     height: int = 576
+    rfilter: ReconstructionFilter = ReconstructionFilter("gaussian")   # Mitsuba's default
 
     def tan_half_fov(self) -> tuple[float, float]:
         """tan of half the field of view along image x and y, from `fov` and `fov_axis`."""

@@ -47,33 +47,33 @@ class Wavefront:
     t_min: Float
     t_max: Float
     weight: Array3f
-    pixel: UInt32
+    sample: UInt32        # the camera sample (index in its chunk) the ray contributes to
     skip: UInt32
     sees_emitters: Bool
 
     def __len__(self) -> int:
-        return dr.width(self.pixel)
+        return dr.width(self.sample)
 
 
 def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int, settings: ReportSettings,
-                image: Float, seed: int) -> tuple[Wavefront | None, int]:
-    """Intersects one level (its rays end at path vertex `vertex`), splats its emission and eq. 10
-    estimates into `image` (flat RGB) and returns the next level and the number of rays traced."""
+                radiance: Float, seed: int) -> tuple[Wavefront | None, int]:
+    """Intersects one level (its rays end at path vertex `vertex`), adds its emission and eq. 10 estimates
+    to `radiance` (flat RGB per camera sample) and returns the next level and the number of rays traced."""
     hit = geo.closest_hit(wave.o, wave.d, wave.t_min, wave.t_max, wave.skip)
     surf = geo.surface(hit, wave.o, wave.d)
     wi = -wave.d
     if geo.emitters:
-        dr.scatter_add(image, wave.weight * geo.emitted(surf, wi), wave.pixel, wave.sees_emitters & surf.valid)
+        dr.scatter_add(radiance, wave.weight * geo.emitted(surf, wi), wave.sample, wave.sees_emitters & surf.valid)
     if vertex + 1 > max_depth:
-        dr.eval(image)
+        dr.eval(radiance)
         return None, len(wave)
     kind = geo.kind(surf.material, surf.valid)
     ns, lit = facing_normal(geo, surf, wi)
     diffuse = surf.valid & lit & (kind == DIFFUSE)
-    dr.eval(image, surf.p, surf.prim, surf.material, ns, kind, diffuse)
+    dr.eval(radiance, surf.p, surf.prim, surf.material, ns, kind, diffuse)
     rays = len(wave)
     if geo.emitters and DIFFUSE in geo.kinds:
-        rays += _shadow_rays(geo, surf, ns, diffuse, wave, settings.direct, image, seed)
+        rays += _shadow_rays(geo, surf, ns, diffuse, wave, settings.direct, radiance, seed)
     return _spawn(geo, surf, ns, diffuse, kind, wave, vertex, max_depth, settings, seed), rays
 
 
@@ -87,7 +87,7 @@ def _gather_surface(surf: Surface, lane: UInt32) -> Surface:
                    dr.gather(UInt32, surf.prim, lane), Bool(True))
 
 
-def _shadow_rays(geo, surf, ns, diffuse, wave, n_direct, image, seed) -> int:
+def _shadow_rays(geo, surf, ns, diffuse, wave, n_direct, radiance, seed) -> int:
     """Eq. 10 at every diffuse vertex: the mean of N shadow rays, splatted with the vertex's weight."""
     vertices = dr.compress(diffuse)
     count = dr.width(vertices)
@@ -97,8 +97,8 @@ def _shadow_rays(geo, surf, ns, diffuse, wave, n_direct, image, seed) -> int:
     estimate = direct_estimate(geo, sub, dr.gather(Array3f, ns, vertices), geo.albedo(sub.material, True),
                                _rng(count, seed, 1), n_direct)
     weight = dr.gather(Array3f, wave.weight, vertices)
-    dr.scatter_add(image, weight * estimate, dr.gather(UInt32, wave.pixel, vertices))
-    dr.eval(image)
+    dr.scatter_add(radiance, weight * estimate, dr.gather(UInt32, wave.sample, vertices))
+    dr.eval(radiance)
     return count * n_direct
 
 
@@ -170,7 +170,7 @@ def _spawn(geo, surf, ns, diffuse, kind, wave, vertex, max_depth, settings, seed
         factor = dr.select(is_glass, Array3f(dr.select(is_reflection, fr, (1.0 - fr) * scale)), factor)
     specular = k != DIFFUSE
     inf = Float(float("inf"))
-    out = Wavefront(p, new_d, Float(0.0), inf, weight * factor, dr.gather(UInt32, wave.pixel, parent),
+    out = Wavefront(p, new_d, Float(0.0), inf, weight * factor, dr.gather(UInt32, wave.sample, parent),
                     dr.gather(UInt32, surf.prim, parent), specular)
-    dr.eval(out.o, out.d, out.weight, out.pixel, out.skip, out.sees_emitters)
+    dr.eval(out.o, out.d, out.weight, out.sample, out.skip, out.sees_emitters)
     return out
