@@ -1,6 +1,7 @@
 """`validate report SCENE.xml [--quick] [--size N]`: run (or resume) the sweeps and write the report;
 `validate reference SCENE.xml --max-depth D --size N`: render or load one cached Mitsuba reference;
-`validate faults`: the table of injected faults the statistical test catches."""
+`validate faults`: the table of injected faults the statistical test catches;
+`validate improvements SCENE.xml`: filters, adaptive sampling and denoising, each measured."""
 from __future__ import annotations
 
 import argparse
@@ -34,7 +35,22 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--output", "-o", type=Path, default=Path("reports"))
     q = sub.add_parser("faults", help="write reports/faults.md: which injected faults the test catches at which spp")
     q.add_argument("--output", "-o", type=Path, default=Path("reports/faults.md"))
+    m = sub.add_parser("improvements", help="write reports/<scene>/improvements.md: filters, adaptive sampling, "
+                       "denoising, each judged by its error against render time")
+    m.add_argument("scene", type=Path)
+    m.add_argument("--quick", action="store_true", help="small images (written to out/reports/<scene>)")
+    m.add_argument("--only", action="append", choices=("filters", "adaptive", "denoise"),
+                   help="run only this study (repeatable)")
+    m.add_argument("--output", "-o", type=Path, help="report folder (default reports/<scene>)")
     return p
+
+
+def _improvements(args) -> None:
+    from .improvements import generate
+
+    out = args.output or (Path("out/reports") if args.quick else Path("reports")) / args.scene.stem
+    command = "validate " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    print(generate(args.scene, out, args.quick, args.only, command))
 
 
 def _config(args):
@@ -84,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"validate: error: --{name} must be at least 8, got {value}", file=sys.stderr)
             return 2
     try:
-        _report(args) if args.command == "report" else _reference(args)
+        {"report": _report, "reference": _reference, "improvements": _improvements}[args.command](args)
     except KeyboardInterrupt:
         print("validate: interrupted; run the same command again to resume", file=sys.stderr)
         return 130
