@@ -262,3 +262,32 @@ def test_undefined_parameter(tmp_path):
     assert "$samples" in message
     # and supplying it fixes the scene
     assert load_scene(path, samples=5).spp == 5
+
+
+# ---- reconstruction filters ---------------------------------------------------------------------------
+def _with_filter(tmp_path, rfilter: str) -> Path:
+    return write_scene(tmp_path, "", header=HEADER.replace('<rfilter type="box"/>', rfilter))
+
+
+@pytest.mark.parametrize("rfilter, expected", [
+    ('<rfilter type="box"/>', ("box", 0.5)),
+    ("", ("gaussian", 2.0)),                                   # Mitsuba's default: gaussian, stddev 0.5
+    ('<rfilter type="gaussian"><float name="stddev" value="0.25"/></rfilter>', ("gaussian", 1.0)),
+    ('<rfilter type="tent"/>', ("tent", 1.0)),
+    ('<rfilter type="tent"><float name="radius" value="1.5"/></rfilter>', ("tent", 1.5)),
+])
+def test_rfilter_kind_and_radius(tmp_path, rfilter, expected):
+    f = load_scene(_with_filter(tmp_path, rfilter)).camera.rfilter
+    assert (f.kind, f.radius) == expected
+
+
+@pytest.mark.parametrize("rfilter, words", [
+    ('<rfilter type="mitchell"/>', "supported: box, gaussian, tent"),
+    ('<rfilter type="tent"><float name="stddev" value="1"/></rfilter>', "supported: radius"),
+    ('<rfilter type="gaussian"><float name="stddev" value="0"/></rfilter>', "must lie in (0, 8]"),
+])
+def test_bad_rfilter_is_refused_with_its_line(tmp_path, rfilter, words):
+    path = _with_filter(tmp_path, rfilter)
+    message = scene_error(path)
+    assert words in message
+    assert_located(message, path, line_of(path, "<rfilter"))

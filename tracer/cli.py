@@ -5,6 +5,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from .film import FILTERS, ReconstructionFilter
 from .mitsuba_xml import load_scene
 from .scene import SceneError
 
@@ -30,6 +31,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--indirect", "-M", type=int, default=8, help="report estimator: hemisphere rays per diffuse hit (eq. 11)")
     r.add_argument("--hemisphere", choices=("cosine", "uniform"), default="cosine",
                    help="report estimator: how eq. 11's directions are drawn")
+    r.add_argument("--filter", choices=FILTERS, help="pixel reconstruction filter, replacing the scene's rfilter "
+                   "(Mitsuba's defaults: gaussian stddev 0.5, tent radius 1)")
     r.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
                    help="override a <default> of the scene, like mitsuba -D")
     r.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
@@ -73,8 +76,9 @@ def _render(scene, args) -> int:
         raise SceneError(f"--output {args.output}: the output must be an .exr file")
     max_depth = args.max_depth if args.report_depth is None else args.report_depth + 2
     spp = args.spp if args.spp is not None or args.estimator == "path" else 1
+    rfilter = ReconstructionFilter(args.filter) if args.filter else scene.camera.rfilter
     result = render(scene, args.estimator, spp=spp, seed=args.seed, max_depth=max_depth, direct=args.direct,
-                    indirect=args.indirect, hemisphere=args.hemisphere, progress=not args.quiet)
+                    indirect=args.indirect, hemisphere=args.hemisphere, rfilter=rfilter, progress=not args.quiet)
     png = args.output.with_suffix(".png")
     write_exr(args.output, result.image)
     write_png(png, result.image)
@@ -85,7 +89,7 @@ def _render(scene, args) -> int:
         extra = f", N = {s['direct']}, M = {s['indirect']} ({s['hemisphere']}), report depth {s['report_depth']}"
     h, w = result.image.shape[:2]
     print(f"rendered {args.scene} with {args.estimator} at {w} x {h}, {result.spp} spp, max_depth {depth}{extra} "
-          f"on {result.backend}")
+          f"on {result.backend}, {rfilter.describe()} filter")
     print(f"  compile {result.compile_seconds:.2f} s, render {result.render_seconds:.2f} s, "
           f"total {result.seconds:.2f} s")
     print(f"  rays {result.rays:,} ({result.rays_per_second / 1e6:.1f} M rays/s)")
@@ -98,7 +102,8 @@ def _info(scene) -> int:
 
     cam = scene.camera
     print(f"{scene.path}")
-    print(f"  camera: perspective, fov {cam.fov} ({cam.fov_axis}), {cam.width} x {cam.height}")
+    print(f"  camera: perspective, fov {cam.fov} ({cam.fov_axis}), {cam.width} x {cam.height}, "
+          f"{cam.rfilter.describe()} filter")
     print(f"  sampler: {scene.spp} spp, seed {scene.seed}; integrator: max_depth {scene.max_depth}, "
           f"rr_depth {scene.rr_depth}")
     print(f"  ({DEPTH_NOTE})")

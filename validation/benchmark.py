@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .scene_variants import write_variant
+
 ROOT = Path(__file__).resolve().parents[1]
 ROOM = ROOT / "mitsuba_scenes" / "hexagon_room.xml"
 REPEATS = 3
@@ -183,12 +185,8 @@ def _split_light_room(folder: Path) -> Path:
             '<scale x="1" y="1"/><translate x="{x}" y="0" z="4.9"/></transform>'
             '<bsdf type="diffuse"><rgb name="reflectance" value="0"/></bsdf>'
             '<emitter type="area"><rgb name="radiance" value="32"/></emitter></shape>')
-    scene = folder / "hexagon_room_two_lights.xml"
-    scene.write_text(text[:start] + half.format(x=3) + half.format(x=5) + text[end:])
-    for mesh in (ROOM.parent / "meshes").iterdir():
-        (folder / "meshes").mkdir(exist_ok=True)
-        (folder / "meshes" / mesh.name).write_bytes(mesh.read_bytes())
-    return scene
+    return write_variant(ROOM, text[:start] + half.format(x=3) + half.format(x=5) + text[end:], folder,
+                         "hexagon_room_two_lights")
 
 
 def cold_start(progress) -> dict:
