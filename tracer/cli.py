@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 from .film import FILTERS, ReconstructionFilter
@@ -35,6 +36,11 @@ def _parser() -> argparse.ArgumentParser:
                    "(Mitsuba's defaults: gaussian stddev 0.5, tent radius 1)")
     r.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
                    help="override a <default> of the scene, like mitsuba -D")
+    r.add_argument("--aovs", action="store_true", help="also write OUT.albedo.exr and OUT.normal.exr: albedo and "
+                   "world-space normal (in [-1, 1]) of the first non-specular surface, through mirrors and glass")
+    r.add_argument("--denoise", action="store_true", help="denoise with Intel Open Image Denoise, guided by the "
+                   "AOVs: OUT.exr/.png are denoised, the noisy image is kept as OUT.noisy.exr, the AOVs are written")
+    r.add_argument("--aov-spp", type=int, default=8, help="samples per pixel of the AOVs (default 8)")
     r.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     i = sub.add_parser("info", help="what a scene holds and what its kernel includes")
     i.add_argument("scene", type=Path)
@@ -69,7 +75,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _render(scene, args) -> int:
-    from .imageio import write_exr, write_png
     from .render import render
 
     if args.output.suffix.lower() != ".exr":
@@ -77,11 +82,12 @@ def _render(scene, args) -> int:
     max_depth = args.max_depth if args.report_depth is None else args.report_depth + 2
     spp = args.spp if args.spp is not None or args.estimator == "path" else 1
     rfilter = ReconstructionFilter(args.filter) if args.filter else scene.camera.rfilter
+    if args.aov_spp < 1:
+        raise ValueError(f"--aov-spp must be >= 1, got {args.aov_spp}")
     result = render(scene, args.estimator, spp=spp, seed=args.seed, max_depth=max_depth, direct=args.direct,
                     indirect=args.indirect, hemisphere=args.hemisphere, rfilter=rfilter, progress=not args.quiet)
-    png = args.output.with_suffix(".png")
-    write_exr(args.output, result.image)
-    write_png(png, result.image)
+    outputs, notes = _outputs(scene, args, result.image, rfilter)
+    _write_all(outputs)
     depth = "unbounded" if result.max_depth < 0 else f"{result.max_depth}"
     extra = ""
     if args.estimator == "report":
@@ -93,8 +99,48 @@ def _render(scene, args) -> int:
     print(f"  compile {result.compile_seconds:.2f} s, render {result.render_seconds:.2f} s, "
           f"total {result.seconds:.2f} s")
     print(f"  rays {result.rays:,} ({result.rays_per_second / 1e6:.1f} M rays/s)")
-    print(f"  wrote {args.output} and {png}")
+    for note in notes:
+        print(note)
+    print(f"  wrote {', '.join(str(path) for path, _, _ in outputs)}")
     return 0
+
+
+def _outputs(scene, args, image, rfilter) -> tuple[list, list[str]]:
+    """The files to write, (path, writer, image), with --aovs and --denoise; lines on their time."""
+    from .imageio import write_exr, write_png
+
+    out = args.output
+    if not (args.aovs or args.denoise):
+        return [(out, write_exr, image), (out.with_suffix(".png"), write_png, image)], []
+    from .aov import render_aovs, write_normal_exr
+
+    aov = render_aovs(scene, args.aov_spp, args.seed, rfilter)
+    notes = [f"  AOVs (albedo, normal) {aov.spp} spp: {aov.render_seconds:.2f} s (compile {aov.compile_seconds:.2f} s)"]
+    extra = [(out.with_suffix(".albedo.exr"), write_exr, aov.albedo),
+             (out.with_suffix(".normal.exr"), write_normal_exr, aov.normal)]
+    if args.denoise:
+        from .denoise import denoise, splatting_warning
+
+        if warning := splatting_warning(rfilter):
+            print(f"tracer: warning: {warning}", file=sys.stderr)
+        start = time.perf_counter()
+        noisy, image = image, denoise(image, aov.albedo, aov.normal)
+        notes.append(f"  denoise (Open Image Denoise, colour + albedo + normal): {time.perf_counter() - start:.2f} s")
+        extra.append((out.with_suffix(".noisy.exr"), write_exr, noisy))
+    return [(out, write_exr, image), (out.with_suffix(".png"), write_png, image)] + extra, notes
+
+
+def _write_all(outputs: list) -> None:
+    """Writes every file or, if one fails, removes those this call already wrote: no partial output."""
+    written = []
+    try:
+        for path, write, image in outputs:
+            write(path, image)
+            written.append(path)
+    except BaseException:
+        for path in written:
+            path.unlink(missing_ok=True)
+        raise
 
 
 def _info(scene) -> int:
