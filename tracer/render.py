@@ -94,14 +94,22 @@ def _seed_state(seed: int, *stream: int) -> int:
     return h
 
 
-def _render_path(geo, scene, film, spp, seed, max_depth, progress) -> int:
+def path_samples(geo, scene, sample: UInt32, pixel: UInt32, seed_state: int, max_depth: int):
+    """One path per lane: lane k draws its random numbers from stream `sample[k]` of `seed_state` and
+    starts through pixel `pixel[k]` (y * width + x). Returns the film position (x, y), the radiance L
+    and the rays each lane traced."""
     depth = 0xFFFFFFFF if max_depth < 0 else max_depth
+    rng = seeded_rng(sample, seed_state)
+    o, d, t_min, t_max, x, y = primary_rays(scene.camera, pixel, rng)
+    L, count = path_radiance(geo, o, d, t_min, t_max, rng, opaque_u32(depth), opaque_u32(scene.rr_depth))
+    return x, y, L, count
+
+
+def _render_path(geo, scene, film, spp, seed, max_depth, progress) -> int:
     rays = 0
     for start, n in _chunks(scene.camera.width * scene.camera.height * spp, PATH_CHUNK, progress, "path"):
         sample = dr.arange(UInt32, n) + opaque_u32(start)
-        rng = seeded_rng(sample, _seed_state(seed))
-        o, d, t_min, t_max, x, y = primary_rays(scene.camera, sample // spp, rng)
-        L, count = path_radiance(geo, o, d, t_min, t_max, rng, opaque_u32(depth), opaque_u32(scene.rr_depth))
+        x, y, L, count = path_samples(geo, scene, sample, sample // spp, _seed_state(seed), max_depth)
         film.put(x, y, L)
         total = dr.sum(count)
         dr.eval(film.data, total)
