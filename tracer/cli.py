@@ -41,6 +41,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--denoise", action="store_true", help="denoise with Intel Open Image Denoise, guided by the "
                    "AOVs: OUT.exr/.png are denoised, the noisy image is kept as OUT.noisy.exr, the AOVs are written")
     r.add_argument("--aov-spp", type=int, default=8, help="samples per pixel of the AOVs (default 8)")
+    r.add_argument("--adaptive", action="store_true", help="path estimator: the same mean spp, half in a pilot "
+                   "pass, the rest placed where the pilot's neighbourhood is noisy (unbiased; box filter)")
     r.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     i = sub.add_parser("info", help="what a scene holds and what its kernel includes")
     i.add_argument("scene", type=Path)
@@ -84,8 +86,15 @@ def _render(scene, args) -> int:
     rfilter = ReconstructionFilter(args.filter) if args.filter else scene.camera.rfilter
     if args.aov_spp < 1:
         raise ValueError(f"--aov-spp must be >= 1, got {args.aov_spp}")
-    result = render(scene, args.estimator, spp=spp, seed=args.seed, max_depth=max_depth, direct=args.direct,
-                    indirect=args.indirect, hemisphere=args.hemisphere, rfilter=rfilter, progress=not args.quiet)
+    if args.adaptive and args.estimator != "path":
+        raise ValueError("--adaptive works with the path estimator only, not --estimator report")
+    if args.adaptive:
+        from .adaptive import render_adaptive
+        result = render_adaptive(scene, spp=spp, seed=args.seed, max_depth=max_depth, rfilter=rfilter,
+                                 progress=not args.quiet)
+    else:
+        result = render(scene, args.estimator, spp=spp, seed=args.seed, max_depth=max_depth, direct=args.direct,
+                        indirect=args.indirect, hemisphere=args.hemisphere, rfilter=rfilter, progress=not args.quiet)
     outputs, notes = _outputs(scene, args, result.image, rfilter)
     _write_all(outputs)
     depth = "unbounded" if result.max_depth < 0 else f"{result.max_depth}"
@@ -93,6 +102,9 @@ def _render(scene, args) -> int:
     if args.estimator == "report":
         s = result.settings
         extra = f", N = {s['direct']}, M = {s['indirect']} ({s['hemisphere']}), report depth {s['report_depth']}"
+    if args.adaptive:
+        n = result.settings["samples"]
+        extra = f" (adaptive: pilot {result.settings['pilot_spp']}, {n.min()} to {n.max()} per pixel)"
     h, w = result.image.shape[:2]
     print(f"rendered {args.scene} with {args.estimator} at {w} x {h}, {result.spp} spp, max_depth {depth}{extra} "
           f"on {result.backend}, {rfilter.describe()} filter")
