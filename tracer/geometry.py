@@ -103,6 +103,10 @@ class SceneGeometry:
         self.prim_radiance = Float(radiance.ravel())
         self.prim_light_pdf = Float(light_pdf)
         self.corner_normals = Float(corner_normals.ravel())
+        self.rect_table = Float(np.array([[r.center, *r.edges, *r.dual_edges] for r in self.rects]).ravel()
+                                if self.rects else np.zeros(15))
+        v = self.tri_vertices if self.n_tris else np.zeros((1, 3, 3))
+        self.tri_table = Float(np.stack([v[:, 0], v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]], 1).ravel())
         materials = self.materials or [BSDF("diffuse", (0.0, 0.0, 0.0))]
         self.mat_albedo = Float(np.array([b.reflectance for b in materials]).ravel())
         self.mat_kind = UInt32([_KIND_CODE[b.kind] for b in materials])
@@ -206,6 +210,10 @@ class SceneGeometry:
         valid = hit.valid
         prim = dr.select(valid, hit.prim, 0)
         p = dr.fma(d, hit.t, o)
+        if self.n_tris:
+            p = self._onto_triangle(p, hit, prim)
+        if self.n_rects:
+            p = self._onto_rectangle(p, prim)
         n = dr.gather(Array3f, self.prim_normal, prim, valid)
         if self.spheres:
             is_sphere = prim >= self.sphere_base
@@ -222,6 +230,31 @@ class SceneGeometry:
             ns = dr.select(is_tri, dr.normalize(interp), n)
         material = dr.gather(UInt32, self.prim_material, prim, valid)
         return Surface(p, n, ns, material, dr.select(valid, hit.prim, NO_PRIM), valid)
+
+    def _onto_triangle(self, p: Array3f, hit: Hit, prim: UInt32) -> Array3f:
+        """A triangle hit's point from its barycentrics clamped to the triangle. The conservative edge
+        test (intersect.EDGE_MARGIN) accepts hits up to 2^-20 beyond an edge, outside a closed mesh
+        when the neighbour is at an angle; a path continued from there could miss the neighbour's plane
+        and leave the mesh. Points kept EDGE_MARGIN inside the triangle cannot, nor can points on an
+        edge whose rounding puts them behind the neighbour's plane. They move by at most 2^-20 of the
+        triangle's size, far below a pixel."""
+        tri = prim - self.n_rects
+        is_tri = (prim >= self.n_rects) & (tri < self.n_tris)
+        inset = intersect.EDGE_MARGIN
+        b1, b2 = dr.maximum(hit.b1, inset), dr.maximum(hit.b2, inset)
+        over = dr.maximum((b1 + b2) / (1.0 - inset), 1.0)
+        b1, b2 = b1 / over, b2 / over
+        v0, e1, e2 = (dr.gather(Array3f, self.tri_table, tri * 3 + k, is_tri) for k in range(3))
+        return dr.select(is_tri, dr.fma(e1, b1, dr.fma(e2, b2, v0)), p)
+
+    def _onto_rectangle(self, p: Array3f, prim: UInt32) -> Array3f:
+        """As _onto_triangle, for rectangles: local coordinates clamped to [-1, 1] less EDGE_MARGIN."""
+        is_rect = prim < self.n_rects
+        center, e1, e2, du, dv = (dr.gather(Array3f, self.rect_table, prim * 5 + k, is_rect) for k in range(5))
+        bound = 1.0 - intersect.EDGE_MARGIN
+        u = dr.clip(dr.dot(p - center, du), -bound, bound)
+        v = dr.clip(dr.dot(p - center, dv), -bound, bound)
+        return dr.select(is_rect, dr.fma(e1, u, dr.fma(e2, v, center)), p)
 
     def _sphere_select(self, prim: UInt32) -> tuple[Array3f, Float]:
         center, radius = vec3(self.spheres[0].center), Float(self.spheres[0].radius)
