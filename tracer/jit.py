@@ -1,6 +1,7 @@
 """The Dr.Jit backend: CUDA where a GPU is present, LLVM on the CPU otherwise.
 
-`TRACER_BACKEND=llvm` or `=cuda` forces one. Every kernel module takes its array types from here.
+`TRACER_BACKEND=llvm` or `=cuda` forces one; `TRACER_PRECISION=double` makes every kernel compute in
+float64. Every kernel module takes its array types from here.
 """
 import os
 
@@ -22,9 +23,12 @@ def _pick_backend():
 
 
 _backend, BACKEND = _pick_backend()
-Float, UInt32, UInt64, Int32, Bool = (_backend.Float, _backend.UInt32, _backend.UInt64, _backend.Int32,
-                                     _backend.Bool)
-Array3f, PCG32 = _backend.Array3f, _backend.PCG32
+UInt32, UInt64, Int32, Bool, PCG32 = _backend.UInt32, _backend.UInt64, _backend.Int32, _backend.Bool, _backend.PCG32
+PRECISION = os.environ.get("TRACER_PRECISION", "single").lower()
+if PRECISION not in ("single", "double"):
+    raise RuntimeError(f"TRACER_PRECISION must be 'single' or 'double', got '{PRECISION}'")
+# double: every kernel computes in float64 (random numbers stay float32, promoted), to tell rounding from bias
+Float, Array3f = (_backend.Float64, _backend.Array3f64) if PRECISION == "double" else (_backend.Float, _backend.Array3f)
 
 INF = float("inf")
 NO_PRIM = 0xFFFFFFFF  # primitive index of "no primitive"
