@@ -81,3 +81,29 @@ def test_hit_points_on_shared_edges_lie_inside_the_enclosure(scene_name):
         assert np.abs(dist[:, -1]).max() < 1e-5                # on its own face's plane
         beyond = dist[:, -2] >= 0                                # on or beyond a neighbouring face's plane
         assert not beyond.any(), f"{beyond.sum()} hit points on or beyond a neighbouring face, up to {dist[:, -2].max():.3g}"
+
+
+def test_double_precision_mode_renders_the_same_image(tmp_path):
+    """TRACER_PRECISION=double (a child process: the kernel types are fixed at import) computes in Float64
+    and, with the same seed and so the same random numbers, gives the float32 image up to rounding."""
+    import os
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    from tracer.render import render
+
+    code = ("import sys, numpy as np, tracer, tracer.jit as j\n"
+            "assert j.Float.__name__ == 'Float64', j.Float\n"
+            f"s = tracer.load_scene({str(stability.SCENES / 'hexagon_room.xml')!r}, width=16, height=16)\n"
+            "from tracer.render import render\n"
+            f"np.save({str(tmp_path / 'd.npy')!r}, render(s, 'path', spp=16, seed=3, max_depth=3).image)\n")
+    env = {**os.environ, "TRACER_PRECISION": "double", "PYTHONPATH": str(stability.ROOT)}
+    subprocess.run([sys.executable, "-c", code], env=env, check=True)
+    double = np.load(tmp_path / "d.npy")
+    single = render(tracer.load_scene(stability.SCENES / "hexagon_room.xml", width=16, height=16), "path",
+                    spp=16, seed=3, max_depth=3).image
+    assert np.isfinite(double).all() and (double >= 0).all()
+    assert np.median(np.abs(double - single)) < 1e-5 * single.mean()   # most pixels: identical paths
+    assert abs(double.mean() - single.mean()) < 0.02 * single.mean()
