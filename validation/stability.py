@@ -484,12 +484,12 @@ def precision_cases(selected: list[Case]) -> list[Case]:
             ("tiny light, area x 1e-06", "light 1e-05 above a floor"))]
 
 
-def run_float64(selected: list[Case], progress=print) -> dict[str, dict]:
+def run_float64(selected: list[Case], alpha: float, progress=print) -> dict[str, dict]:
     """The same cases rendered by the tracer in double precision (TRACER_PRECISION=double, a child
     process: the kernels' types are fixed at import). Returns {case name: outcome fields}."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "outcomes.json"
-        cmd = [sys.executable, "-m", "validation.stability", "--outcomes", str(out)]
+        cmd = [sys.executable, "-m", "validation.stability", "--outcomes", str(out), "--case-alpha", repr(alpha)]
         for c in selected:
             cmd += ["--case", c.name]
         env = {**os.environ, "TRACER_PRECISION": "double", "PYTHONPATH": str(ROOT)}
@@ -502,9 +502,9 @@ def run_float64(selected: list[Case], progress=print) -> dict[str, dict]:
 
 
 # ---- the report --------------------------------------------------------------------------------------
-def run(selected: list[Case], mitsuba: bool = True, progress=print) -> list[Outcome]:
-    n_stat = sum(c.statistical for c in selected)
-    alpha = ALPHA / max(n_stat, 1)
+def run(selected: list[Case], mitsuba: bool = True, progress=print, alpha: float | None = None) -> list[Outcome]:
+    """Runs the cases at `alpha` each (default: ALPHA shared by the statistical cases among them)."""
+    alpha = alpha or ALPHA / max(sum(c.statistical for c in selected), 1)
     outcomes = []
     for case in selected:
         o = run_case(case, alpha, mitsuba)
@@ -616,6 +616,7 @@ def main(argv=None) -> int:
     ap.add_argument("--write-scenes", action="store_true", help="regenerate the scaled rooms and exit")
     ap.add_argument("--case", action="append", help="only the case of this exact name (repeatable)")
     ap.add_argument("--outcomes", type=Path, help="write the outcomes as JSON here")
+    ap.add_argument("--case-alpha", type=float, help="false-positive rate of each case (default: the suite's share)")
     args = ap.parse_args(argv)
     if args.write_scenes:
         for p in write_scenes():
@@ -624,7 +625,7 @@ def main(argv=None) -> int:
     selected = [c for c in cases() if (not args.fast or c.fast) and (not args.only or args.only in c.name)
                 and (not args.case or c.name in args.case)]
     start = time.perf_counter()
-    outcomes = run(selected, mitsuba=not args.no_mitsuba)
+    outcomes = run(selected, mitsuba=not args.no_mitsuba, alpha=args.case_alpha)
     t0 = time.perf_counter()
     sweep = bad_number_sweep(mitsuba=not args.no_mitsuba) if args.report else {}
     sweep_seconds = time.perf_counter() - t0
@@ -634,7 +635,7 @@ def main(argv=None) -> int:
         args.outcomes.write_text(json.dumps({o.case.name: {"passed": bool(o.passed), "ours": o.ours, "error": o.error}
                                              for o in outcomes}))
     if args.report:
-        float64 = run_float64(precision_cases(selected))
+        float64 = run_float64(precision_cases(selected), ALPHA / max(sum(c.statistical for c in selected), 1))
         write_report(args.report, outcomes, sweep, sweep_seconds, time.perf_counter() - start, float64)
         print(f"wrote {args.report}")
     failed = sum(not o.passed and o.case.graded for o in outcomes) + sum(len(r["failed"]) for r in sweep.values())
