@@ -169,12 +169,12 @@ def test_cli_denoise_failure_leaves_no_file(tmp_path, monkeypatch, capsys):
 
 
 def test_cli_write_failure_removes_what_was_written(tmp_path, monkeypatch, capsys):
-    import tracer.aov
+    import tracer.imageio
 
     def broken(path, image):
         raise OSError(f"{path}: disk full")
 
-    monkeypatch.setattr(tracer.aov, "write_normal_exr", broken)
+    monkeypatch.setattr(tracer.imageio, "write_normal_exr", broken)
     assert cli.main(ARGS + ["-o", str(tmp_path / "room.exr"), "--aovs"]) == 1
     assert "disk full" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []

@@ -20,17 +20,13 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
-from pathlib import Path
-
 import drjit as dr
 import numpy as np
-import OpenEXR
 
 from .bsdf import dielectric_interface, reflect
 from .camera import primary_rays
 from .film import Film, ReconstructionFilter
 from .geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneGeometry
-from .imageio import ImageError, _atomic
 from .integrators.direct import facing_normal
 from .jit import INF, NO_PRIM, PCG32, Array3f, Bool, Float, UInt32, opaque_u32
 from .render import PATH_CHUNK, _chunks, _seed_state
@@ -128,18 +124,3 @@ def _vertex(geo, rng, o, d, t_min, t_max, skip, bounce, albedo, normal):
     albedo = dr.select(record, rho, albedo)
     normal = dr.select(record, ns, normal)
     return albedo, normal, surf.p, new_d, surf.prim, follow & ~give_up
-
-
-def write_normal_exr(path: str | Path, normal: np.ndarray) -> None:
-    """A normal image as a float32 RGB OpenEXR, atomically: imageio.write_exr refuses negative values, and
-    a normal image lies in [-1, 1] (OIDN reads it so, not remapped to [0, 1])."""
-    if not np.isfinite(normal).all() or np.abs(normal).max(initial=0.0) > 1.0:
-        raise ImageError(f"{path}: a normal image must be finite and lie in [-1, 1]")
-    rgb = np.ascontiguousarray(normal, dtype=np.float32)
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-
-    def write(tmp):
-        with OpenEXR.File(header, {"RGB": rgb}) as f:
-            f.write(tmp)
-
-    _atomic(Path(path), write)

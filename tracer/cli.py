@@ -124,7 +124,8 @@ def _outputs(scene, args, image, rfilter) -> tuple[list, list[str]]:
     out = args.output
     if not (args.aovs or args.denoise):
         return [(out, write_exr, image), (out.with_suffix(".png"), write_png, image)], []
-    from .aov import render_aovs, write_normal_exr
+    from .aov import render_aovs
+    from .imageio import write_normal_exr
 
     aov = render_aovs(scene, args.aov_spp, args.seed, rfilter)
     notes = [f"  AOVs (albedo, normal) {aov.spp} spp: {aov.render_seconds:.2f} s (compile {aov.compile_seconds:.2f} s)"]

@@ -43,6 +43,17 @@ def _atomic(path: Path, write) -> None:
 
 def write_exr(path: str | Path, image: np.ndarray) -> None:
     check_image(image, str(path))
+    _write_rgb_exr(Path(path), image)
+
+
+def write_normal_exr(path: str | Path, normal: np.ndarray) -> None:
+    """A normal image, whose components lie in [-1, 1] (OIDN reads them so, not remapped to [0, 1])."""
+    if not np.isfinite(normal).all() or np.abs(normal).max(initial=0.0) > 1.0:
+        raise ImageError(f"{path}: a normal image must be finite and lie in [-1, 1]")
+    _write_rgb_exr(Path(path), normal)
+
+
+def _write_rgb_exr(path: Path, image: np.ndarray) -> None:
     rgb = np.ascontiguousarray(image, dtype=np.float32)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
 
@@ -50,7 +61,7 @@ def write_exr(path: str | Path, image: np.ndarray) -> None:
         with OpenEXR.File(header, {"RGB": rgb}) as f:
             f.write(tmp)
 
-    _atomic(Path(path), write)
+    _atomic(path, write)
 
 
 def read_exr(path: str | Path) -> np.ndarray:
