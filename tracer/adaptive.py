@@ -31,14 +31,15 @@ its pilot_spp + n_i samples are independent draws with the pixel's true mean:
 E[mean] = E[E[mean | n_i]] = the true value. `tests/test_adaptive.py` shows that the variant that
 estimates s_i from the pixel's own pilot is measurably biased and that this one is not.
 
-**Choices, measured on hexagon_room at 128 x 128** (expected RMSE of the allocation, computed from the
-Mitsuba reference's per-pixel variance): the neighbours' mean is a far steadier estimate than a pixel's
-few pilot samples (noise is spatially smooth: the light's edge, a caustic, a penumbra cover several
-pixels); averaging standard deviations rather than variances keeps one rare bright pilot sample from
-drawing samples into its whole neighbourhood; 5 x 5 beat 3 x 3; and a pilot of half the budget did as
-well as or better than a quarter or an eighth from 16 to 1024 spp. The pilot is not wasted (its samples
-stay in the image); it is the defensive share that keeps every pixel at half the mean rate whatever
-its noisy pilot estimate says.
+**Choices, measured on hexagon_room at 128 x 128** (the expected RMSE of an allocation, computed from the
+Mitsuba reference's per-pixel variance, over 3 or 4 pilots): the neighbours' mean allocates better than a
+pixel's own few pilot samples would even if those were allowed (the noisy features, the light's edges
+and its images in the spheres, cover several pixels); averaging standard deviations rather than
+variances was better or within 0.5%, since one rare bright pilot sample then draws fewer samples into its
+whole neighbourhood; 5 x 5 was better than 3 x 3 with pilots of up to a quarter of the budget and within
+2% with half; a pilot of half the budget was the best or within 1% of the best of an eighth, a quarter
+and a half from 16 to 1024 spp. The pilot is not wasted (its samples stay in the image); it is the
+defensive share that keeps every pixel at half the mean rate whatever its noisy estimate says.
 
 Only the box filter is supported: with a wider filter a sample splats into neighbouring pixels whose
 weight sums would then depend on other pixels' sample counts, which changes the image a pixel
