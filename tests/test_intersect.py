@@ -21,8 +21,8 @@ from .float32 import U, arr3, f32, unit  # noqa: E402
 
 
 def rect(o, d, center, du, dv, n, t_min=0.0, t_max=INF) -> np.ndarray:
-    return intersect.ray_rectangle(arr3(o), arr3(d), vec3(center), vec3(du), vec3(dv), vec3(n),
-                                   t_min, t_max).numpy()
+    t, _, _ = intersect.ray_rectangle(arr3(o), arr3(d), vec3(center), vec3(du), vec3(dv), vec3(n), t_min, t_max)
+    return t.numpy()
 
 
 def tri(o, d, v0, v1, v2, t_min=0.0, t_max=INF):

@@ -27,6 +27,7 @@ class Hit:
     prim: UInt32
     b1: Float
     b2: Float
+    p: Array3f        # the hit point, kept inside its rectangle or triangle (intersect.inset_point)
 
     @property
     def valid(self) -> Bool:
@@ -103,10 +104,9 @@ class SceneGeometry:
         self.prim_radiance = Float(radiance.ravel())
         self.prim_light_pdf = Float(light_pdf)
         self.corner_normals = Float(corner_normals.ravel())
-        self.rect_table = Float(np.array([[r.center, *r.edges, *r.dual_edges] for r in self.rects]).ravel()
-                                if self.rects else np.zeros(15))
-        v = self.tri_vertices if self.n_tris else np.zeros((1, 3, 3))
-        self.tri_table = Float(np.stack([v[:, 0], v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]], 1).ravel())
+        frames = [[r.center, *r.edges] for r in self.rects]
+        frames += [[v[0], v[1] - v[0], v[2] - v[0]] for v in self.tri_vertices]
+        self.prim_frame = Float(np.array(frames or np.zeros((1, 3, 3))).ravel())
         materials = self.materials or [BSDF("diffuse", (0.0, 0.0, 0.0))]
         self.mat_albedo = Float(np.array([b.reflectance for b in materials]).ravel())
         self.mat_kind = UInt32([_KIND_CODE[b.kind] for b in materials])
@@ -168,7 +168,18 @@ class SceneGeometry:
                 b1, b2 = dr.select(closer, u, b1), dr.select(closer, v, b2)
         if self.bvh is not None:
             t_best, prim, b1, b2 = self.bvh.closest_hit(o, d, t_min, t_best, prim, b1, b2, skip)
-        return Hit(t_best, prim, b1, b2)
+        return Hit(t_best, prim, b1, b2, self._hit_point(o, d, t_best, prim, b1, b2))
+
+    def _hit_point(self, o, d, t, prim, b1, b2) -> Array3f:
+        """o + t d, or on a rectangle or triangle the point of its local coordinates kept inside it
+        (intersect.inset_point), from the primitive's frame (origin, e1, e2)."""
+        p = dr.fma(d, t, o)
+        planar = prim < self.sphere_base
+        if not (self.n_rects or self.n_tris):
+            return p
+        origin, e1, e2 = (dr.gather(Array3f, self.prim_frame, prim * 3 + k, planar) for k in range(3))
+        inset = intersect.inset_point(origin, e1, e2, b1, b2, prim < self.n_rects)
+        return dr.select(planar, inset, p)
 
     def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32) -> Bool:
         """Whether anything but `skip` and `target` lies on the segment o + t d, 0 < t < dist."""
@@ -181,13 +192,13 @@ class SceneGeometry:
 
     def _candidates(self, o, d, t_min, skip, target=None, only=None):
         """Per primitive (of `only`, if given): (index, t, b1, b2) of its hit, t = inf on a miss or for an
-        excluded primitive."""
+        excluded primitive; (b1, b2): a rectangle's local coordinates, a triangle's barycentrics."""
         for i, r in enumerate(self.rects):
             if only is not None and i not in only:
                 continue
             du, dv = r.dual_edges
-            t = intersect.ray_rectangle(o, d, vec3(r.center), vec3(du), vec3(dv), vec3(r.normal), t_min, INF)
-            yield i, self._exclude(t, i, skip, target), None, None
+            t, x, y = intersect.ray_rectangle(o, d, vec3(r.center), vec3(du), vec3(dv), vec3(r.normal), t_min, INF)
+            yield i, self._exclude(t, i, skip, target), x, y
         for j, v in enumerate(self.tri_vertices if self.bvh is None else ()):
             if only is not None and self.n_rects + j not in only:
                 continue
@@ -209,11 +220,7 @@ class SceneGeometry:
     def surface(self, hit: Hit, o: Array3f, d: Array3f) -> Surface:
         valid = hit.valid
         prim = dr.select(valid, hit.prim, 0)
-        p = dr.fma(d, hit.t, o)
-        if self.n_tris:
-            p = self._onto_triangle(p, hit, prim)
-        if self.n_rects:
-            p = self._onto_rectangle(p, prim)
+        p = hit.p
         n = dr.gather(Array3f, self.prim_normal, prim, valid)
         if self.spheres:
             is_sphere = prim >= self.sphere_base
@@ -230,31 +237,6 @@ class SceneGeometry:
             ns = dr.select(is_tri, dr.normalize(interp), n)
         material = dr.gather(UInt32, self.prim_material, prim, valid)
         return Surface(p, n, ns, material, dr.select(valid, hit.prim, NO_PRIM), valid)
-
-    def _onto_triangle(self, p: Array3f, hit: Hit, prim: UInt32) -> Array3f:
-        """A triangle hit's point from its barycentrics clamped to the triangle. The conservative edge
-        test (intersect.EDGE_MARGIN) accepts hits up to 2^-20 beyond an edge, outside a closed mesh
-        when the neighbour is at an angle; a path continued from there could miss the neighbour's plane
-        and leave the mesh. Points kept EDGE_MARGIN inside the triangle cannot, nor can points on an
-        edge whose rounding puts them behind the neighbour's plane. They move by at most 2^-20 of the
-        triangle's size, far below a pixel."""
-        tri = prim - self.n_rects
-        is_tri = (prim >= self.n_rects) & (tri < self.n_tris)
-        inset = intersect.EDGE_MARGIN
-        b1, b2 = dr.maximum(hit.b1, inset), dr.maximum(hit.b2, inset)
-        over = dr.maximum((b1 + b2) / (1.0 - inset), 1.0)
-        b1, b2 = b1 / over, b2 / over
-        v0, e1, e2 = (dr.gather(Array3f, self.tri_table, tri * 3 + k, is_tri) for k in range(3))
-        return dr.select(is_tri, dr.fma(e1, b1, dr.fma(e2, b2, v0)), p)
-
-    def _onto_rectangle(self, p: Array3f, prim: UInt32) -> Array3f:
-        """As _onto_triangle, for rectangles: local coordinates clamped to [-1, 1] less EDGE_MARGIN."""
-        is_rect = prim < self.n_rects
-        center, e1, e2, du, dv = (dr.gather(Array3f, self.rect_table, prim * 5 + k, is_rect) for k in range(5))
-        bound = 1.0 - intersect.EDGE_MARGIN
-        u = dr.clip(dr.dot(p - center, du), -bound, bound)
-        v = dr.clip(dr.dot(p - center, dv), -bound, bound)
-        return dr.select(is_rect, dr.fma(e1, u, dr.fma(e2, v, center)), p)
 
     def _sphere_select(self, prim: UInt32) -> tuple[Array3f, Float]:
         center, radius = vec3(self.spheres[0].center), Float(self.spheres[0].radius)

@@ -14,19 +14,36 @@ from .jit import INF, Array3f, Bool, Float
 EDGE_MARGIN = 2.0 ** -20
 
 
-def ray_rectangle(o: Array3f, d: Array3f, center, du, dv, n, t_min, t_max) -> Float:
+def ray_rectangle(o: Array3f, d: Array3f, center, du, dv, n, t_min, t_max) -> tuple[Float, Float, Float]:
     """Ray-plane intersection (eq. 2-4) and a bounds test in the rectangle's own coordinates.
 
     `du`, `dv` are the dual edge vectors, so dot(p - center, du) is the local x in [-1, 1].
-    A ray parallel to the plane (N.D = 0) misses.
+    Returns t and the hit's local coordinates (x, y). A ray parallel to the plane (N.D = 0) misses.
     """
     cos_nd = dr.dot(n, d)                                        # eq. 2
     t = dr.dot(n, center - o) / cos_nd                           # eq. 3
     rel = dr.fma(d, t, o) - center                               # eq. 4, relative to the centre
+    x, y = dr.dot(rel, du), dr.dot(rel, dv)
     bound = 1.0 + EDGE_MARGIN
-    inside = (dr.abs(dr.dot(rel, du)) <= bound) & (dr.abs(dr.dot(rel, dv)) <= bound)
+    inside = (dr.abs(x) <= bound) & (dr.abs(y) <= bound)
     hit = (cos_nd != 0) & inside & (t > t_min) & (t < t_max)
-    return dr.select(hit, t, INF)
+    return dr.select(hit, t, INF), x, y
+
+
+def inset_point(origin, e1, e2, c1: Float, c2: Float, rectangle: Bool) -> Array3f:
+    """origin + c1 e1 + c2 e2 with the coordinates clamped EDGE_MARGIN inside the primitive: a rectangle's
+    local (x, y) to [-1, 1], a triangle's barycentrics to b1, b2 >= 0, b1 + b2 <= 1.
+
+    The conservative edge tests accept hits up to EDGE_MARGIN beyond an edge, outside a closed mesh
+    where the neighbour meets it at an angle; a path continued from there could miss the neighbour's
+    plane and leave the mesh. Points kept inside cannot, nor can points on an edge that rounding puts
+    behind the neighbour's plane. They move by at most 2^-20 of the primitive's size, far below a pixel."""
+    bound = 1.0 - EDGE_MARGIN
+    b1, b2 = dr.maximum(c1, EDGE_MARGIN), dr.maximum(c2, EDGE_MARGIN)
+    over = dr.maximum((b1 + b2) / bound, 1.0)
+    c1 = dr.select(rectangle, dr.clip(c1, -bound, bound), b1 / over)
+    c2 = dr.select(rectangle, dr.clip(c2, -bound, bound), b2 / over)
+    return dr.fma(e1, c1, dr.fma(e2, c2, origin))
 
 
 def ray_triangle(o: Array3f, d: Array3f, v0, e1, e2, t_min, t_max) -> tuple[Float, Float, Float]:
