@@ -54,6 +54,11 @@ def table(out: Path) -> Path:
             caught, clean = measure(fault, spp)
             cells.append(f"{'caught' if caught else 'missed'} / {'passes' if clean else 'FAILS'}")
         lines.append(f"| {fault.name} | {fault.scene} | {fault.estimator} | {fault.max_depth} | " + " | ".join(cells) + " |")
+    if any("FAILS" in line for line in lines[7:]):
+        lines += ["", "A correct tracer that FAILS is either biased or a false alarm of the test: per-pass means of "
+                  "few samples are not normal where rare bright paths (caustics) decide a block, and the test then "
+                  "rejects on the dark side (t < 0). A bias is rejected more surely as the samples per pass grow; a "
+                  "false alarm goes away. Check with more samples per pass before reading one as a bias."]
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n".join(lines) + "\n")
     return out
