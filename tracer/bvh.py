@@ -2,7 +2,8 @@
 
 Nodes are stored in depth-first order with a "miss" link to the node that follows their subtree, so
 the kernel walks the tree without a stack (a threaded BVH): a hit box descends to node + 1, a missed
-box or a finished leaf jumps to its miss link. Splits are at the median centroid along the longest
+box or a finished leaf jumps to its miss link; a leaf's triangles are tested in a branch that a packet of
+lanes skips when none of them is at a leaf (without it, every step paid for a leaf test). Splits are at the median centroid along the longest
 axis; leaves hold up to LEAF_SIZE triangles. (An ordered traversal with a per-lane stack in Dr.Jit's
 local memory read unwritten stack slots on the LLVM backend; the stackless walk needs no stack.)
 """
@@ -111,11 +112,12 @@ class BVHKernel:
         while node < self.n_nodes:
             box = self._box(node, o, inv_d, t_best)
             leaf = dr.gather(UInt32, self.count, node) > 0
-            t, slot, u, v = self._leaf(node, box & leaf, o, d, t_min, t_best, skip, None)
-            closer = t < t_best
-            t_best = dr.select(closer, t, t_best)
-            prim = dr.select(closer, dr.gather(UInt32, self.prim, slot, closer), prim)
-            b1, b2 = dr.select(closer, u, b1), dr.select(closer, v, b2)
+            if box & leaf:   # a symbolic branch: skipped when no lane of a packet is at a leaf
+                t, slot, u, v = self._leaf(node, True, o, d, t_min, t_best, skip, None)
+                closer = t < t_best
+                t_best = dr.select(closer, t, t_best)
+                prim = dr.select(closer, dr.gather(UInt32, self.prim, slot, closer), prim)
+                b1, b2 = dr.select(closer, u, b1), dr.select(closer, v, b2)
             node = dr.select(box & ~leaf, node + 1, dr.gather(UInt32, self.miss, node))
         return t_best, prim, b1, b2
 
@@ -127,7 +129,8 @@ class BVHKernel:
         while (node < self.n_nodes) & ~blocked:
             box = self._box(node, o, inv_d, dist)
             leaf = dr.gather(UInt32, self.count, node) > 0
-            t, slot, u, v = self._leaf(node, box & leaf, o, d, 0.0, dist, skip, target)
-            blocked = t < dist
+            if box & leaf:
+                t, slot, u, v = self._leaf(node, True, o, d, 0.0, dist, skip, target)
+                blocked = t < dist
             node = dr.select(box & ~leaf, node + 1, dr.gather(UInt32, self.miss, node))
         return blocked
