@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tracer import bsdf
-from tracer.jit import Array3f, Float
+from tracer.jit import Float
 
 from .float32 import U, arr3, f32, unit  # noqa: E402
 

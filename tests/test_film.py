@@ -1,5 +1,4 @@
 """The film: reconstruction filters and splatting with Mitsuba's weights (tracer/film.py)."""
-import drjit as dr
 import numpy as np
 import pytest
 

@@ -14,7 +14,7 @@ import tracer
 from tracer import intersect
 from tracer.geometry import SceneGeometry
 from tracer.intersect import EDGE_MARGIN
-from tracer.jit import INF, NO_PRIM, Array3f, Bool, Float, UInt32, vec3
+from tracer.jit import INF, NO_PRIM, Bool, Float, UInt32, vec3
 from tracer.scene import BSDF, Rectangle
 
 from .float32 import U, arr3, f32, unit  # noqa: E402

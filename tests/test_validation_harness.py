@@ -1,6 +1,5 @@
 """The harness's own parts: reference cache (keys, atomic files, checksums), metrics, resumable sweeps, CLI."""
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -47,15 +47,13 @@ converges to.
 """
 from __future__ import annotations
 
-import time
-
 import drjit as dr
 import numpy as np
 
 from .film import Film, ReconstructionFilter
 from .geometry import SceneGeometry
-from .jit import UInt32, opaque_u32
-from .render import PATH_CHUNK, RenderResult, _chunks, _seed_state, path_samples
+from .jit import UInt32
+from .render import RenderResult, path_samples, seed_state, timed, trace_pass
 from .scene import Scene
 
 CRITERIA = ("stddev", "relative", "variance")
@@ -94,14 +92,8 @@ def render_adaptive(scene: Scene, spp: int | None = None, seed: int | None = Non
 
     cam = scene.camera
     film = Film(cam.width, cam.height, rfilter)
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    dr.kernel_history()  # clear
-    start = time.perf_counter()
-    rays, counts = adaptive_passes(film, sampler, spp, pilot_spp, seed, criterion, progress)
-    image = film.develop()
-    seconds = time.perf_counter() - start
-    compile_s = sum(k.get("codegen_time", 0) + k.get("backend_time", 0) for k in dr.kernel_history()) / 1000
-    dr.set_flag(dr.JitFlag.KernelHistory, False)
+    (rays, counts, image), seconds, compile_s = timed(
+        lambda: (*adaptive_passes(film, sampler, spp, pilot_spp, seed, criterion, progress), film.develop()))
     settings = {"adaptive": True, "pilot_spp": pilot_spp, "criterion": criterion,
                 "samples": counts.reshape(cam.height, cam.width)}
     return RenderResult(image, "path", spp, max_depth, seconds, compile_s, rays, settings=settings)
@@ -125,16 +117,8 @@ def adaptive_passes(film: Film, sampler, spp: int, pilot_spp: int, seed: int, cr
     squares = Film(w, h, film.rfilter)
 
     # 1. Pilot: pilot_spp samples per pixel, sums and sums of squares.
-    rays = 0
-    pilot_state = _seed_state(seed, STREAM, 0)
-    for start, n in _chunks(pixels * pilot_spp, PATH_CHUNK, progress, "pilot"):
-        sample = dr.arange(UInt32, n) + opaque_u32(start)
-        x, y, L, count = sampler(sample, sample // pilot_spp, pilot_state)
-        film.put(x, y, L)
-        squares.put(x, y, L * L)
-        total = dr.sum(count)
-        dr.eval(film.data, squares.data, total)
-        rays += int(total[0])
+    rays = trace_pass(film, sampler, pixels * pilot_spp, lambda sample: sample // pilot_spp,
+                      seed_state(seed, STREAM, 0), progress, "pilot", squares)
 
     # 2. Allocation, from each pixel's neighbours only.
     mean, second = film.develop().astype(np.float64), squares.develop().astype(np.float64)
@@ -148,15 +132,9 @@ def adaptive_passes(film: Film, sampler, spp: int, pilot_spp: int, seed: int, cr
     # 3. Adaptive pass: lane j belongs to the pixel i with ends[i-1] <= j < ends[i].
     ends_np = np.cumsum(extra, dtype=np.int64)
     ends = UInt32(ends_np.astype(np.uint32))
-    adaptive_state = _seed_state(seed, STREAM, 1)
-    for start, n in _chunks(int(ends_np[-1]), PATH_CHUNK, progress, "adaptive"):
-        sample = dr.arange(UInt32, n) + opaque_u32(start)
-        pixel = dr.binary_search(0, pixels - 1, lambda i: dr.gather(UInt32, ends, i) <= sample)
-        x, y, L, count = sampler(sample, pixel, adaptive_state)
-        film.put(x, y, L)
-        total = dr.sum(count)
-        dr.eval(film.data, total)
-        rays += int(total[0])
+    rays += trace_pass(film, sampler, int(ends_np[-1]),
+                       lambda sample: dr.binary_search(0, pixels - 1, lambda i: dr.gather(UInt32, ends, i) <= sample),
+                       seed_state(seed, STREAM, 1), progress, "adaptive")
     return rays, extra + pilot_spp
 
 

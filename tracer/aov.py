@@ -17,7 +17,6 @@ What a sample records where it stops:
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import drjit as dr
@@ -29,7 +28,7 @@ from .film import Film, ReconstructionFilter
 from .geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneGeometry
 from .integrators.direct import facing_normal
 from .jit import INF, NO_PRIM, PCG32, Array3f, Bool, Float, UInt32, opaque_u32
-from .render import PATH_CHUNK, _chunks, _seed_state
+from .render import PATH_CHUNK, Timed, chunks, seed_state, timed
 from .sampling import seeded_rng
 from .scene import Scene
 
@@ -39,16 +38,12 @@ DEFAULT_SPP = 8
 
 
 @dataclass
-class AovResult:
+class AovResult(Timed):
     albedo: np.ndarray      # (height, width, 3) float32 in [0, 1]
     normal: np.ndarray      # (height, width, 3) float32 in [-1, 1], world space, filtered (not renormalised)
     spp: int
     seconds: float = 0.0
     compile_seconds: float = 0.0
-
-    @property
-    def render_seconds(self) -> float:
-        return max(self.seconds - self.compile_seconds, 0.0)
 
 
 def render_aovs(scene: Scene, spp: int = DEFAULT_SPP, seed: int | None = None,
@@ -61,21 +56,19 @@ def render_aovs(scene: Scene, spp: int = DEFAULT_SPP, seed: int | None = None,
     geo, cam = SceneGeometry(scene), scene.camera
     rfilter = cam.rfilter if rfilter is None else rfilter
     albedo_film, normal_film = Film(cam.width, cam.height, rfilter), Film(cam.width, cam.height, rfilter)
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    dr.kernel_history()  # clear
-    start = time.perf_counter()
-    for first, n in _chunks(cam.width * cam.height * spp, PATH_CHUNK, False, "aov"):
-        sample = dr.arange(UInt32, n) + opaque_u32(first)
-        rng = seeded_rng(sample, _seed_state(seed, AOV_STREAM))
-        o, d, t_min, t_max, x, y = primary_rays(cam, sample // spp, rng)
-        albedo, normal = first_diffuse_features(geo, o, d, t_min, t_max, rng)
-        albedo_film.put(x, y, albedo)
-        normal_film.put(x, y, normal)
-        dr.eval(albedo_film.data, normal_film.data)
-    albedo, normal = albedo_film.develop(), normal_film.develop()
-    seconds = time.perf_counter() - start
-    compile_s = sum(k.get("codegen_time", 0) + k.get("backend_time", 0) for k in dr.kernel_history()) / 1000
-    dr.set_flag(dr.JitFlag.KernelHistory, False)
+
+    def run():
+        for first, n in chunks(cam.width * cam.height * spp, PATH_CHUNK, False, "aov"):
+            sample = dr.arange(UInt32, n) + opaque_u32(first)
+            rng = seeded_rng(sample, seed_state(seed, AOV_STREAM))
+            o, d, t_min, t_max, x, y = primary_rays(cam, sample // spp, rng)
+            albedo, normal = first_diffuse_features(geo, o, d, t_min, t_max, rng)
+            albedo_film.put(x, y, albedo)
+            normal_film.put(x, y, normal)
+            dr.eval(albedo_film.data, normal_film.data)
+        return albedo_film.develop(), normal_film.develop()
+
+    (albedo, normal), seconds, compile_s = timed(run)
     # float rounding of the filter's weighted sums only
     return AovResult(np.clip(albedo, 0.0, 1.0), np.clip(normal, -1.0, 1.0), spp, seconds, compile_s)
 

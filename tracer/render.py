@@ -13,7 +13,7 @@ from .film import Film, ReconstructionFilter
 from .geometry import SceneGeometry
 from .integrators.path import path_radiance
 from .integrators.report import ReportSettings, Wavefront, trace_level
-from .jit import BACKEND, NO_PRIM, PCG32, Array3f, Bool, Float, UInt32, UInt64, opaque_u32
+from .jit import BACKEND, NO_PRIM, Array3f, Bool, Float, UInt32, opaque_u32
 from .sampling import seeded_rng
 from .scene import Scene
 
@@ -22,8 +22,19 @@ PATH_CHUNK = 1 << 21       # samples per path-tracing launch
 REPORT_BUDGET = 1 << 23    # worst-case rays per report-estimator level
 
 
+class Timed:
+    """A result timed with `timed`: `seconds` of wall time, of which `compile_seconds` went to kernels."""
+
+    seconds: float
+    compile_seconds: float
+
+    @property
+    def render_seconds(self) -> float:
+        return max(self.seconds - self.compile_seconds, 0.0)
+
+
 @dataclass
-class RenderResult:
+class RenderResult(Timed):
     image: np.ndarray                 # (height, width, 3) float32, linear radiance
     estimator: str
     spp: int
@@ -33,10 +44,6 @@ class RenderResult:
     rays: int = 0                     # closest-hit and shadow rays traced
     backend: str = BACKEND
     settings: dict = field(default_factory=dict)
-
-    @property
-    def render_seconds(self) -> float:
-        return max(self.seconds - self.compile_seconds, 0.0)
 
     @property
     def rays_per_second(self) -> float:
@@ -59,26 +66,36 @@ def render(scene: Scene, estimator: str = "path", spp: int | None = None, seed: 
     geo = SceneGeometry(scene)
     cam = scene.camera
     film = Film(cam.width, cam.height, cam.rfilter if rfilter is None else rfilter)
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    dr.kernel_history()  # clear
-    start = time.perf_counter()
-    if estimator == "path":
-        rays, settings = _render_path(geo, scene, film, spp, seed, max_depth, progress), {}
-    else:
-        report = ReportSettings(direct, indirect, hemisphere)
+    if estimator == "report":
         if max_depth < 0:
             raise ValueError("the report estimator branches at every bounce: it needs a finite max_depth")
-        rays = _render_report(geo, scene, film, spp, seed, max_depth, report, progress)
-        settings = {"direct": direct, "indirect": indirect, "hemisphere": hemisphere,
-                    "report_depth": max_depth - 2}
-    pixels = film.develop()
-    seconds = time.perf_counter() - start
-    compile_s = sum(k.get("codegen_time", 0) + k.get("backend_time", 0) for k in dr.kernel_history()) / 1000
-    dr.set_flag(dr.JitFlag.KernelHistory, False)
+        report = ReportSettings(direct, indirect, hemisphere)
+        run = lambda: _render_report(geo, scene, film, spp, seed, max_depth, report, progress)  # noqa: E731
+        settings = {"direct": direct, "indirect": indirect, "hemisphere": hemisphere, "report_depth": max_depth - 2}
+    else:
+        run = lambda: _render_path(geo, scene, film, spp, seed, max_depth, progress)  # noqa: E731
+        settings = {}
+    (rays, pixels), seconds, compile_s = timed(lambda: (run(), film.develop()))
     return RenderResult(pixels, estimator, spp, max_depth, seconds, compile_s, rays, settings=settings)
 
 
-def _chunks(total: int, size: int, progress: bool, label: str):
+def timed(run):
+    """(run's result, wall seconds, of which Dr.Jit's kernel generation and compilation): runs `run()`
+    with Dr.Jit's kernel history on."""
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()  # clear
+    start = time.perf_counter()
+    try:
+        out = run()
+        seconds = time.perf_counter() - start
+        history = dr.kernel_history()
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    return out, seconds, sum(k.get("codegen_time", 0) + k.get("backend_time", 0) for k in history) / 1000
+
+
+def chunks(total: int, size: int, progress: bool, label: str):
+    """(start, count) of consecutive launches of at most `size` samples, with a progress bar."""
     bar = tqdm(total=total, unit="spl", unit_scale=True, desc=label, disable=not progress, leave=False)
     for start in range(0, total, size):
         n = min(size, total - start)
@@ -87,7 +104,8 @@ def _chunks(total: int, size: int, progress: bool, label: str):
     bar.close()
 
 
-def _seed_state(seed: int, *stream: int) -> int:
+def seed_state(seed: int, *stream: int) -> int:
+    """The initial state of the random streams `stream` of `seed` (seeded_rng's seed)."""
     h = seed & 0xFFFFFFFFFFFFFFFF
     for s in stream:
         h = (h * 0x9E3779B97F4A7C15 + s + 1) % 2**64
@@ -105,26 +123,38 @@ def path_samples(geo, scene, sample: UInt32, pixel: UInt32, seed_state: int, max
     return x, y, L, count
 
 
-def _render_path(geo, scene, film, spp, seed, max_depth, progress) -> int:
+def trace_pass(film: Film, sampler, total: int, pixel_of, state: int, progress: bool, label: str,
+               squares: Film | None = None) -> int:
+    """`total` samples into `film`, in launches of PATH_CHUNK: sample k goes through pixel pixel_of(k)
+    and `sampler(sample, pixel, state)` (as path_samples) traces it. `squares`, if given, sums the
+    squared radiance. Returns the rays traced."""
     rays = 0
-    for start, n in _chunks(scene.camera.width * scene.camera.height * spp, PATH_CHUNK, progress, "path"):
+    for start, n in chunks(total, PATH_CHUNK, progress, label):
         sample = dr.arange(UInt32, n) + opaque_u32(start)
-        x, y, L, count = path_samples(geo, scene, sample, sample // spp, _seed_state(seed), max_depth)
+        x, y, L, count = sampler(sample, pixel_of(sample), state)
         film.put(x, y, L)
-        total = dr.sum(count)
-        dr.eval(film.data, total)
-        rays += int(total[0])
+        if squares is not None:
+            squares.put(x, y, L * L)
+        launched = dr.sum(count)
+        dr.eval(film.data, launched, *([] if squares is None else [squares.data]))
+        rays += int(launched[0])
     return rays
+
+
+def _render_path(geo, scene, film, spp, seed, max_depth, progress) -> int:
+    sampler = lambda sample, pixel, state: path_samples(geo, scene, sample, pixel, state, max_depth)  # noqa: E731
+    return trace_pass(film, sampler, film.width * film.height * spp, lambda sample: sample // spp,
+                      seed_state(seed), progress, "path")
 
 
 def _render_report(geo, scene, film, spp, seed, max_depth, settings, progress) -> int:
     widest = settings.slots ** max(max_depth - 2, 0) * settings.direct
     chunk = max(1, REPORT_BUDGET // widest)
     rays = 0
-    for index, (start, n) in enumerate(_chunks(scene.camera.width * scene.camera.height * spp, chunk,
+    for index, (start, n) in enumerate(chunks(scene.camera.width * scene.camera.height * spp, chunk,
                                                progress, "report")):
         sample = dr.arange(UInt32, n) + opaque_u32(start)
-        rng = seeded_rng(sample, _seed_state(seed, index))
+        rng = seeded_rng(sample, seed_state(seed, index))
         o, d, t_min, t_max, x, y = primary_rays(scene.camera, sample // spp, rng)
         dr.eval(x, y)
         radiance = dr.zeros(Float, n * 3)
@@ -132,7 +162,7 @@ def _render_report(geo, scene, film, spp, seed, max_depth, settings, progress) -
         vertex = 1
         while wave is not None and vertex <= max(max_depth, 0):
             wave, traced = trace_level(geo, wave, vertex, max_depth, settings, radiance,
-                                       _seed_state(seed, index, vertex))
+                                       seed_state(seed, index, vertex))
             rays += traced
             vertex += 1
         film.put(x, y, dr.gather(Array3f, radiance, dr.arange(UInt32, n)))

@@ -299,7 +299,7 @@ def section(scene_file: Path, out: Path, quick: bool = False) -> list[str]:
 
 
 def _markdown(m: dict, cfg: Config, same_time: int, crop_names: list[str], run_seconds: float) -> list[str]:
-    rows, masks = m["rows"], m["masks"]
+    rows = m["rows"]
     noisy = {r["spp"]: r for r in rows if r["method"] == "noisy"}
     den = {(r["method"], r["spp"]): r for r in rows if r["method"] != "noisy"}
     oidn = m["oidn_seconds"]

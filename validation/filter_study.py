@@ -22,7 +22,6 @@ import numpy as np  # noqa: E402
 
 import tracer  # noqa: E402
 from tracer.camera import primary_rays  # noqa: E402
-from tracer.film import ReconstructionFilter  # noqa: E402
 from tracer.geometry import SceneGeometry  # noqa: E402
 from tracer.imageio import srgb_encode  # noqa: E402
 from tracer.jit import NO_PRIM, UInt32  # noqa: E402

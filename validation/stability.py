@@ -526,7 +526,7 @@ def write_report(path: Path, outcomes: list[Outcome], sweep: dict, sweep_seconds
         f"({time.strftime('%Y-%m-%d %H:%M')}, {version()}; {total / 60:.1f} min on this machine). "
         "Scenes: `mitsuba_scenes/stress/`; method: the docstring of `validation/stability.py`.",
         "",
-        f"- Every image rendered here passed `tracer.imageio.check_image` (no NaN, infinity or negative value).",
+        "- Every image rendered here passed `tracer.imageio.check_image` (no NaN, infinity or negative value).",
         f"- Statistical cases ({n_stat}) are tested at family-wise false-positive rate {ALPHA:g} for the whole "
         f"suite (Bonferroni: {ALPHA / max(n_stat, 1):.2g} per case, half on the image mean, half on the "
         "4x4 blocks). *error ± bound*: (ours − reference) / reference of the image mean, and the half-width "

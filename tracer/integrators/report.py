@@ -15,7 +15,7 @@ import drjit as dr
 
 from ..bsdf import dielectric_interface, reflect
 from ..geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneGeometry, Surface
-from ..jit import NO_PRIM, PCG32, Array3f, Bool, Float, UInt32, UInt64
+from ..jit import NO_PRIM, PCG32, Array3f, Bool, Float, UInt32
 from ..sampling import seeded_rng, square_to_cosine_hemisphere, square_to_uniform_hemisphere, to_world
 from .direct import facing_normal, sample_direct
 
