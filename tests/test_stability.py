@@ -74,8 +74,8 @@ def test_hit_points_on_shared_edges_lie_inside_the_enclosure(scene_name):
     import numpy as np
     from scipy.spatial import ConvexHull
 
-    for geo, vertices, o, d, hit in stability.edge_rays(scene_name):
-        p = geo.surface(hit, o, d).p.numpy().T.astype(np.float64)
+    for geo, vertices, _, _, hit in stability.edge_rays(scene_name):
+        p = geo.surface(hit).p.numpy().T.astype(np.float64)
         planes = np.unique(ConvexHull(vertices).equations.round(9), axis=0)   # outward n, offset c: n.x + c <= 0 inside
         dist = np.sort(p @ planes[:, :3].T + planes[:, 3], axis=1)
         assert np.abs(dist[:, -1]).max() < 1e-5                # on its own face's plane

@@ -89,7 +89,7 @@ def first_diffuse_features(geo: SceneGeometry, o: Array3f, d: Array3f, t_min: Fl
 def _vertex(geo, rng, o, d, t_min, t_max, skip, bounce, albedo, normal):
     """One vertex: record the features and stop, or continue along the specular direction."""
     hit = geo.closest_hit(o, d, t_min, t_max, skip)
-    surf = geo.surface(hit, o, d)
+    surf = geo.surface(hit)
     wi = -d
     kind = geo.kind(surf.material, surf.valid)
     ns, lit = facing_normal(geo, surf, wi)

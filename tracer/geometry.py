@@ -115,18 +115,19 @@ class SceneGeometry:
         self.mat_ext_ior = Float([b.ext_ior for b in materials])
 
     def _emitter_prim_ranges(self) -> list[tuple[int, int]]:
-        ranges, base = [], self.n_rects
-        starts = {}
+        return [self.prim_range(e) for e in self.emitters]
+
+    def prim_range(self, shape: Rectangle | Mesh) -> tuple[int, int]:
+        """The primitive indices [lo, hi) of a rectangle or a mesh of the scene."""
+        if isinstance(shape, Rectangle):
+            i = self.rects.index(shape)
+            return i, i + 1
+        base = self.n_rects
         for m in self.scene.meshes:
-            starts[id(m)] = base
+            if m is shape:
+                return base, base + len(m.faces)
             base += len(m.faces)
-        for e in self.emitters:
-            if isinstance(e, Rectangle):
-                i = self.rects.index(e)
-                ranges.append((i, i + 1))
-            else:
-                ranges.append((starts[id(e)], starts[id(e)] + len(e.faces)))
-        return ranges
+        raise ValueError("the mesh is not part of this scene")
 
     def _possible_occluders(self) -> set[int]:
         """Primitives that can block a shadow ray. A shadow ray joins two points of the scene, so a planar
@@ -217,7 +218,7 @@ class SceneGeometry:
         return dr.select(out, INF, t)
 
     # ---- surface data -----------------------------------------------------------------------------
-    def surface(self, hit: Hit, o: Array3f, d: Array3f) -> Surface:
+    def surface(self, hit: Hit) -> Surface:
         valid = hit.valid
         prim = dr.select(valid, hit.prim, 0)
         p = hit.p

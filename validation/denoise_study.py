@@ -68,7 +68,7 @@ def _pixel_samples(scene: tracer.Scene, spp: int):
     sample = dr.arange(UInt32, cam.width * cam.height * spp)
     rng = seeded_rng(sample, 0x5EED)
     o, d, t_min, t_max, _, _ = primary_rays(cam, sample // spp, rng)
-    surf = geo.surface(geo.closest_hit(o, d, t_min, t_max, UInt32(NO_PRIM)), o, d)
+    surf = geo.surface(geo.closest_hit(o, d, t_min, t_max, UInt32(NO_PRIM)))
     kind = geo.kind(surf.material, surf.valid)
     ns, lit = facing_normal(geo, surf, -d)
     diffuse = surf.valid & (kind == DIFFUSE) & lit

@@ -44,7 +44,7 @@ def edge_mask(scene: tracer.Scene, name: str = EDGE_OBJECT, spp: int = 256) -> n
     its faces (coverage by camera rays strictly between 2% and 98%)."""
     geo = SceneGeometry(scene)
     cam = scene.camera
-    faces = _face_range(scene, name)
+    faces = geo.prim_range(_mesh(scene, name))
     n_pix = cam.width * cam.height
     cover = np.zeros((faces[1] - faces[0], n_pix))
     pixel = dr.arange(UInt32, n_pix)
@@ -57,12 +57,10 @@ def edge_mask(scene: tracer.Scene, name: str = EDGE_OBJECT, spp: int = 256) -> n
     return ((cover > 0.02) & (cover < 0.98)).any(0).reshape(cam.height, cam.width)
 
 
-def _face_range(scene: tracer.Scene, name: str) -> tuple[int, int]:
-    base = len(scene.rectangles)
+def _mesh(scene: tracer.Scene, name: str):
     for m in scene.meshes:
         if m.name == name:
-            return base, base + len(m.faces)
-        base += len(m.faces)
+            return m
     raise ValueError(f"{scene.path}: no mesh with id '{name}'")
 
 

@@ -46,7 +46,7 @@ def _vertex(geo, rng, L, beta, eta, o, d, t_min, t_max, skip, prev_delta, prev_p
     """One path vertex: emission (MIS-weighted), a shadow ray, and the next direction."""
     hit = geo.closest_hit(o, d, t_min, t_max, skip)
     rays += 1
-    surf = geo.surface(hit, o, d)
+    surf = geo.surface(hit)
     wi = -d
     if geo.emitters:
         cos_l = dr.abs(dr.dot(surf.ns, d))

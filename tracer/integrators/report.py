@@ -60,7 +60,7 @@ def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int
     """Intersects one level (its rays end at path vertex `vertex`), adds its emission and eq. 10 estimates
     to `radiance` (flat RGB per camera sample) and returns the next level and the number of rays traced."""
     hit = geo.closest_hit(wave.o, wave.d, wave.t_min, wave.t_max, wave.skip)
-    surf = geo.surface(hit, wave.o, wave.d)
+    surf = geo.surface(hit)
     wi = -wave.d
     if geo.emitters:
         dr.scatter_add(radiance, wave.weight * geo.emitted(surf, wi), wave.sample, wave.sees_emitters & surf.valid)
