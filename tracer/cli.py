@@ -119,18 +119,18 @@ def _render(scene, args) -> int:
 
 def _outputs(scene, args, image, rfilter) -> tuple[list, list[str]]:
     """The files to write, (path, writer, image), with --aovs and --denoise; lines on their time."""
-    from .imageio import write_exr, write_png
+    from .imageio import write_exr, write_normal_exr, write_png
 
     out = args.output
-    if not (args.aovs or args.denoise):
-        return [(out, write_exr, image), (out.with_suffix(".png"), write_png, image)], []
-    from .aov import render_aovs
-    from .imageio import write_normal_exr
+    extra, notes = [], []
+    if args.aovs or args.denoise:
+        from .aov import render_aovs
 
-    aov = render_aovs(scene, args.aov_spp, args.seed, rfilter)
-    notes = [f"  AOVs (albedo, normal) {aov.spp} spp: {aov.render_seconds:.2f} s (compile {aov.compile_seconds:.2f} s)"]
-    extra = [(out.with_suffix(".albedo.exr"), write_exr, aov.albedo),
-             (out.with_suffix(".normal.exr"), write_normal_exr, aov.normal)]
+        aov = render_aovs(scene, args.aov_spp, args.seed, rfilter)
+        notes.append(f"  AOVs (albedo, normal) {aov.spp} spp: {aov.render_seconds:.2f} s "
+                     f"(compile {aov.compile_seconds:.2f} s)")
+        extra += [(out.with_suffix(".albedo.exr"), write_exr, aov.albedo),
+                  (out.with_suffix(".normal.exr"), write_normal_exr, aov.normal)]
     if args.denoise:
         from .denoise import denoise, splatting_warning
 

@@ -55,7 +55,7 @@ class Film:
         self.size = (width + 2 * self.border, height + 2 * self.border)
         self.data = dr.zeros(Float, self.size[0] * self.size[1] * 4)
 
-    def put(self, x: Float, y: Float, value: Array3f, active: Bool = Bool(True)) -> None:
+    def put(self, x: Float, y: Float, value: Array3f, active: Bool | bool = True) -> None:
         """Adds samples at film positions (x, y) in pixels (0 .. width, 0 .. height)."""
         if self.rfilter.kind == "box":
             px = dr.minimum(UInt32(dr.floor(x)), self.width - 1)
