@@ -74,7 +74,7 @@ def test_hit_points_on_shared_edges_lie_inside_the_enclosure(scene_name):
     import numpy as np
     from scipy.spatial import ConvexHull
 
-    for geo, vertices, _, _, hit in stability.edge_rays(scene_name):
+    for geo, vertices, hit in stability.edge_rays(scene_name):
         p = geo.surface(hit).p.numpy().T.astype(np.float64)
         planes = np.unique(ConvexHull(vertices).equations.round(9), axis=0)   # outward n, offset c: n.x + c <= 0 inside
         dist = np.sort(p @ planes[:, :3].T + planes[:, 3], axis=1)

@@ -83,13 +83,12 @@ class BVHKernel:
         t_far = dr.min(dr.maximum(t0, t1))
         return (t_near <= t_far) & (t_far >= 0) & (t_near <= t_max)
 
-    def _leaf(self, node, mask, o, d, t_min, t_best, skip, target):
+    def _leaf(self, node, count, o, d, t_min, t_best, skip, target):
         """The nearest hit among a leaf's triangles: (t, slot, b1, b2), t = inf if none."""
-        first = dr.gather(UInt32, self.first, node, mask)
-        count = dr.gather(UInt32, self.count, node, mask)
+        first = dr.gather(UInt32, self.first, node)
         t_hit, slot, u_hit, v_hit = Float(INF), UInt32(0), Float(0), Float(0)
         for k in range(LEAF_SIZE):
-            active = mask & (k < count)
+            active = k < count
             s = first + k
             prim = dr.gather(UInt32, self.prim, s, active)
             active &= prim != skip
@@ -111,9 +110,10 @@ class BVHKernel:
         node = UInt32(0)
         while node < self.n_nodes:
             box = self._box(node, o, inv_d, t_best)
-            leaf = dr.gather(UInt32, self.count, node) > 0
+            count = dr.gather(UInt32, self.count, node)
+            leaf = count > 0
             if box & leaf:   # a symbolic branch: skipped when no lane of a packet is at a leaf
-                t, slot, u, v = self._leaf(node, True, o, d, t_min, t_best, skip, None)
+                t, slot, u, v = self._leaf(node, count, o, d, t_min, t_best, skip, None)
                 closer = t < t_best
                 t_best = dr.select(closer, t, t_best)
                 prim = dr.select(closer, dr.gather(UInt32, self.prim, slot, closer), prim)
@@ -128,9 +128,10 @@ class BVHKernel:
         node, blocked = UInt32(0), Bool(False)
         while (node < self.n_nodes) & ~blocked:
             box = self._box(node, o, inv_d, dist)
-            leaf = dr.gather(UInt32, self.count, node) > 0
+            count = dr.gather(UInt32, self.count, node)
+            leaf = count > 0
             if box & leaf:
-                t, slot, u, v = self._leaf(node, True, o, d, 0.0, dist, skip, target)
+                t, slot, u, v = self._leaf(node, count, o, d, 0.0, dist, skip, target)
                 blocked = t < dist
             node = dr.select(box & ~leaf, node + 1, dr.gather(UInt32, self.miss, node))
         return blocked

@@ -435,8 +435,7 @@ LEAK_SCENES = ("leak_rectangles.xml", "leak_cube_mesh.xml", "leak_tetrahedron.xm
 
 def edge_rays(scene_name: str, per_edge: int = 401):
     """Rays from three points inside the closed enclosure of `scene_name`, aimed at its corners and at
-    `per_edge` points along every edge: yields (scene geometry, enclosure vertices, origin, directions,
-    the closest hits)."""
+    `per_edge` points along every edge: yields (scene geometry, enclosure vertices, the closest hits)."""
     import tracer
     from tracer.geometry import SceneGeometry
     from tracer.jit import INF, NO_PRIM, Array3f, Float, UInt32
@@ -459,7 +458,7 @@ def edge_rays(scene_name: str, per_edge: int = 401):
         n = len(d)
         origin = Array3f(*(Float(np.full(n, x, np.float32)) for x in o))
         direction = Array3f(*(Float(d[:, i].astype(np.float32)) for i in range(3)))
-        yield geo, v, origin, direction, geo.closest_hit(origin, direction, Float(0.0), Float(INF), UInt32(NO_PRIM))
+        yield geo, v, geo.closest_hit(origin, direction, Float(0.0), Float(INF), UInt32(NO_PRIM))
 
 
 def edge_ray_misses(scene_name: str, per_edge: int = 401) -> tuple[int, int]:
@@ -468,7 +467,7 @@ def edge_ray_misses(scene_name: str, per_edge: int = 401) -> tuple[int, int]:
     from tracer.jit import NO_PRIM
 
     misses = total = 0
-    for geo, _, _, _, hit in edge_rays(scene_name, per_edge):
+    for geo, _, hit in edge_rays(scene_name, per_edge):
         lights = [i for i, r in enumerate(geo.rects) if r.radiance is not None]
         prim = hit.prim.numpy()
         misses += int(np.sum((prim == NO_PRIM) | np.isin(prim, lights)))
