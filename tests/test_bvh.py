@@ -4,7 +4,7 @@ import pytest
 
 import tracer
 import tracer.geometry as geometry
-from tracer.bvh import build
+from tracer.bvh import BVHKernel, build, threaded_layout
 from tracer.jit import NO_PRIM, Array3f, Float, UInt32
 
 from .conftest import SCENES
@@ -26,7 +26,7 @@ def test_build_covers_every_triangle_once():
     assert flat.count[leaves].sum() == 1000
     for node in np.flatnonzero(leaves):   # each leaf's box bounds its triangles
         t = tris[flat.order[flat.first[node]:flat.first[node] + flat.count[node]]]
-        assert (t.min(axis=(0, 1)) >= flat.bounds[node, 0]).all() and (t.max(axis=(0, 1)) <= flat.bounds[node, 1]).all()
+        assert (t.min(axis=(0, 1)) >= flat.lo[node]).all() and (t.max(axis=(0, 1)) <= flat.hi[node]).all()
 
 
 @pytest.mark.parametrize("skip_prim", [False, True])
@@ -47,3 +47,60 @@ def test_bvh_matches_brute_force(monkeypatch, skip_prim):
     dist = Float(np.random.default_rng(2).uniform(0.1, 8, 4000))
     np.testing.assert_array_equal(brute.occluded(o, d, dist, skip, UInt32(NO_PRIM)).numpy(),
                                   bvh.occluded(o, d, dist, skip, UInt32(NO_PRIM)).numpy())
+
+
+def test_threaded_layouts_are_depth_first_with_the_near_child_first():
+    tris = np.random.default_rng(3).uniform(-1, 1, (500, 3, 3))
+    tree = build(tris)
+    inner = np.flatnonzero(tree.inner)
+    for axis in range(3):
+        for sign in (1, -1):
+            position, miss = threaded_layout(tree, axis, sign)
+            assert sorted(position) == list(range(len(position)))
+            assert miss[0] == len(position)   # the root's subtree is the whole tree
+            for node in inner:
+                a, b = tree.left[node], tree.right[node]
+                near, far = (a, b) if position[a] < position[b] else (b, a)
+                assert position[near] == position[node] + 1   # a hit box descends to the next node
+                assert position[far] == miss[near]            # the near subtree's miss link is the far child
+                assert miss[far] == miss[node]                # the far subtree ends where its parent's does
+                centre = tree.lo[:, axis] + tree.hi[:, axis]
+                assert sign * centre[near] <= sign * centre[far]
+
+
+def _numpy_closest_hits(o, d, tris):
+    """Reference: Moeller-Trumbore against every triangle, in float64."""
+    v0, e1, e2 = tris[:, 0], tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
+    t_best, prim = np.full(len(o), np.inf), np.full(len(o), -1)
+    for i in range(len(tris)):
+        p = np.cross(d, e2[i])
+        det = p @ e1[i]
+        tv = o - v0[i]
+        u = (tv * p).sum(1) / det
+        q = np.cross(tv, e1[i])
+        v, t = (d * q).sum(1) / det, q @ e2[i] / det
+        hit = (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0) & (t < t_best)
+        t_best, prim = np.where(hit, t, t_best), np.where(hit, i, prim)
+    return t_best, prim
+
+
+def test_bvh_closest_hits_and_shadow_rays_on_a_large_mesh():
+    """600 triangles in a cube; rays in every major direction (all six layouts) against a float64 reference."""
+    rng = np.random.default_rng(4)
+    tris = rng.uniform(-1, 1, (600, 1, 3)) + rng.uniform(-0.15, 0.15, (600, 3, 3))
+    o, d = _rays(6000, [0, 0, 0], 1.5, seed=5)
+    kernel = BVHKernel(tris, prim_base=7)
+    n = 6000
+    t, prim, _, _ = kernel.closest_hit(o, d, 0.0, Float(np.full(n, np.inf)), UInt32(np.full(n, NO_PRIM, np.uint32)),
+                                       Float(np.zeros(n)), Float(np.zeros(n)), UInt32(NO_PRIM))
+    t_ref, prim_ref = _numpy_closest_hits(o.numpy().T.astype(np.float64), d.numpy().T.astype(np.float64), tris)
+    hit = np.isfinite(t_ref)
+    assert 0.1 < hit.mean() < 0.9   # the rays exercise both hits and misses
+    assert np.array_equal(np.isfinite(t.numpy()), hit)
+    np.testing.assert_allclose(t.numpy()[hit], t_ref[hit], rtol=1e-4)
+    assert (prim.numpy()[hit] == prim_ref[hit] + 7).mean() > 0.999   # ties at shared depths may differ
+    dist = np.where(hit, t_ref * 1.001, 10.0)
+    blocked = kernel.occluded(o, d, Float(dist), UInt32(NO_PRIM), UInt32(NO_PRIM)).numpy()
+    assert np.array_equal(blocked, hit)
+    shorter = kernel.occluded(o, d, Float(np.where(hit, t_ref * 0.999, 10.0)), UInt32(NO_PRIM), UInt32(NO_PRIM))
+    assert not shorter.numpy()[hit].any()

@@ -1,11 +1,21 @@
 """A bounding volume hierarchy over triangles: built on the host, traversed in the kernel.
 
-Nodes are stored in depth-first order with a "miss" link to the node that follows their subtree, so
-the kernel walks the tree without a stack (a threaded BVH): a hit box descends to node + 1, a missed
-box or a finished leaf jumps to its miss link; a leaf's triangles are tested in a branch that a packet of
-lanes skips when none of them is at a leaf (without it, every step paid for a leaf test). Splits are at the median centroid along the longest
-axis; leaves hold up to LEAF_SIZE triangles. (An ordered traversal with a per-lane stack in Dr.Jit's
-local memory read unwritten stack slots on the LLVM backend; the stackless walk needs no stack.)
+The tree splits at the median centroid along the longest axis (built one level at a time, vectorised);
+leaves hold up to LEAF_SIZE triangles. The kernel walks it without a stack, as a multiple-threaded BVH
+(Hachisuka's MTBVH): the tree is laid out in depth-first order six times, once per major ray direction
+(+x, -x, +y, ...), with the child nearer along that direction first. Each node carries a "miss" link to
+the node after its subtree: a hit inner box goes on to node + 1, a missed box or a finished leaf jumps to
+the miss link. A ray walks the layout of its largest direction component, so it meets near triangles
+first and its shrinking closest hit culls the far boxes. A leaf's triangles are tested in a branch that a
+packet of lanes skips when none of them is at a leaf.
+
+A node is eight values, gathered in one packet load: its box's min corner, its miss link, its max corner
+and its leaf word (first triangle * 8 + count, 0 for an inner node). A triangle is twelve: v0, its
+primitive id, e1, 0, e2, 0. The integers are stored as the bits of floats.
+
+(A per-lane stack, which would let a step test both children's boxes, is not used: Dr.Jit 1.5's local
+memory (dr.alloc_local) lost pushed entries in this traversal on the LLVM backend, and a stack held in
+unrolled registers was slower on small meshes.)
 """
 from __future__ import annotations
 
@@ -15,123 +25,177 @@ import drjit as dr
 import numpy as np
 
 from . import intersect
-from .jit import INF, Array3f, Bool, Float, UInt32
+from .jit import INF, PRECISION, Array3f, ArrayXf, Bool, Float, UInt32, UInt64
 
 LEAF_SIZE = 2
+_FLOAT, _UINT = (np.float64, np.uint64) if PRECISION == "double" else (np.float32, np.uint32)
+_UINT_JIT = UInt64 if PRECISION == "double" else UInt32
 
 
 @dataclass
-class FlatBVH:
-    bounds: np.ndarray   # (nodes, 2, 3): min and max corner
-    miss: np.ndarray     # (nodes,) index of the node after this subtree
-    first: np.ndarray    # (nodes,) first triangle of a leaf (in `order`)
-    count: np.ndarray    # (nodes,) triangles in a leaf, 0 for an inner node
-    order: np.ndarray    # (triangles,) original triangle index of each leaf slot
+class Tree:
+    """Nodes in creation order (parents before children); a leaf has left = right = -1."""
+    lo: np.ndarray      # (nodes, 3) box min corner
+    hi: np.ndarray      # (nodes, 3) box max corner
+    left: np.ndarray    # (nodes,) first child
+    right: np.ndarray   # (nodes,) second child
+    first: np.ndarray   # (nodes,) a leaf's first triangle slot (in `order`)
+    count: np.ndarray   # (nodes,) a leaf's triangles, 0 for an inner node
+    order: np.ndarray   # (triangles,) original triangle index of each leaf slot
+    levels: list        # node index ranges (begin, end) of each depth, root first
+
+    @property
+    def inner(self) -> np.ndarray:
+        return self.left >= 0
 
 
-def build(tri_vertices: np.ndarray) -> FlatBVH:
+def build(tri_vertices: np.ndarray) -> Tree:
     """Median-split BVH over triangles given as (n, 3, 3) vertices."""
-    lo, hi = tri_vertices.min(axis=1), tri_vertices.max(axis=1)
-    centroid = (lo + hi) / 2
+    lo_t, hi_t = tri_vertices.min(axis=1), tri_vertices.max(axis=1)
+    centroid = (lo_t + hi_t) / 2
     order = np.arange(len(tri_vertices))
-    bounds, miss, first, count = [], [], [], []
+    lo, hi, left, right, first, count = [], [], [], [], [], []
+    begin, size, n_nodes, levels = np.array([0]), np.array([len(tri_vertices)]), 1, []
+    while len(begin):
+        levels.append((n_nodes - len(begin), n_nodes))
+        slots = _ranges(begin, size)
+        starts = np.cumsum(size) - size
+        ids = order[slots]
+        lo.append(np.minimum.reduceat(lo_t[ids], starts))
+        hi.append(np.maximum.reduceat(hi_t[ids], starts))
+        split = size > LEAF_SIZE
+        first.append(np.where(split, 0, begin))
+        count.append(np.where(split, 0, size))
+        # split every inner segment at its median along its centroids' longest axis
+        c = centroid[ids]
+        extent = np.maximum.reduceat(c, starts) - np.minimum.reduceat(c, starts)
+        segment = np.repeat(np.arange(len(begin)), size)
+        key = c[np.arange(len(ids)), np.argmax(extent, axis=1)[segment]]
+        order[slots] = ids[np.lexsort((key, segment))]
+        n_split = int(split.sum())
+        child = n_nodes + 2 * np.arange(n_split)
+        left.append(np.where(split, 0, -1)), right.append(np.where(split, 0, -1))
+        left[-1][split], right[-1][split] = child, child + 1
+        half = size[split] // 2
+        begin = np.stack([begin[split], begin[split] + half], 1).ravel()
+        size = np.stack([half, size[split] - half], 1).ravel()
+        n_nodes += 2 * n_split
+    cat = np.concatenate
+    return Tree(cat(lo), cat(hi), cat(left), cat(right), cat(first), cat(count), order, levels)
 
-    def node(begin: int, end: int) -> None:
-        ids = order[begin:end]
-        index = len(bounds)
-        bounds.append(np.stack([lo[ids].min(0), hi[ids].max(0)]))
-        miss.append(0)
-        if end - begin <= LEAF_SIZE:
-            first.append(begin)
-            count.append(end - begin)
-        else:
-            first.append(0)
-            count.append(0)
-            c = centroid[ids]
-            axis = int(np.argmax(c.max(0) - c.min(0)))
-            mid = (end - begin) // 2
-            order[begin:end] = ids[np.argpartition(c[:, axis], mid)]
-            node(begin, begin + mid)
-            node(begin + mid, end)
-        miss[index] = len(bounds)
 
-    node(0, len(tri_vertices))
-    return FlatBVH(np.asarray(bounds), np.asarray(miss, np.uint32), np.asarray(first, np.uint32),
-                   np.asarray(count, np.uint32), order)
+def _ranges(begin: np.ndarray, size: np.ndarray) -> np.ndarray:
+    """The concatenated integer ranges [begin, begin + size)."""
+    offset = np.repeat(begin - (np.cumsum(size) - size), size)
+    return offset + np.arange(size.sum())
+
+
+def threaded_layout(tree: Tree, axis: int, sign: int) -> tuple[np.ndarray, np.ndarray]:
+    """Depth-first positions of the nodes with the child nearer along sign * axis first, and each node's
+    miss link (the position after its subtree)."""
+    subtree = np.ones(len(tree.left), np.int64)
+    for begin, end in tree.levels[::-1]:   # bottom-up
+        node = begin + np.flatnonzero(tree.inner[begin:end])
+        subtree[node] += subtree[tree.left[node]] + subtree[tree.right[node]]
+    position = np.zeros(len(tree.left), np.int64)
+    for begin, end in tree.levels:         # top-down
+        node = begin + np.flatnonzero(tree.inner[begin:end])
+        a, b = tree.left[node], tree.right[node]
+        near_left = sign * (tree.lo[a, axis] + tree.hi[a, axis]) <= sign * (tree.lo[b, axis] + tree.hi[b, axis])
+        near, far = np.where(near_left, a, b), np.where(near_left, b, a)
+        position[near] = position[node] + 1
+        position[far] = position[node] + 1 + subtree[near]
+    return position, position + subtree
 
 
 class BVHKernel:
-    """The BVH's arrays on the device and its traversal; triangle ids are offset by `prim_base`."""
+    """The BVH's six threaded layouts and triangles on the device, and their traversal; triangle ids are
+    offset by `prim_base`."""
 
     def __init__(self, tri_vertices: np.ndarray, prim_base: int):
-        flat = build(tri_vertices)
-        v = tri_vertices[flat.order]
-        self.n_nodes = len(flat.miss)
-        self.bounds = Float(flat.bounds.ravel())
-        self.miss, self.first, self.count = UInt32(flat.miss), UInt32(flat.first), UInt32(flat.count)
-        self.v0 = Float(v[:, 0].ravel())
-        self.e1 = Float((v[:, 1] - v[:, 0]).ravel())
-        self.e2 = Float((v[:, 2] - v[:, 0]).ravel())
-        self.prim = UInt32(flat.order.astype(np.uint32) + prim_base)
+        tree = build(tri_vertices)
+        self.n_nodes = len(tree.left)
+        leaf_word = (tree.first * 8 + tree.count).astype(_UINT)
+        tables = []
+        for axis in range(3):
+            for sign in (1, -1):
+                position, miss = threaded_layout(tree, axis, sign)
+                table = np.empty((self.n_nodes, 8), _FLOAT)
+                table[position, 0:3], table[position, 4:7] = tree.lo, tree.hi
+                table[position, 3] = miss.astype(_UINT).view(_FLOAT)
+                table[position, 7] = leaf_word.view(_FLOAT)
+                tables.append(table)
+        self.nodes = Float(np.concatenate(tables).ravel())
+        v = tri_vertices[tree.order]
+        tris = np.zeros((len(v), 12), _FLOAT)
+        tris[:, 0:3], tris[:, 4:7], tris[:, 8:11] = v[:, 0], v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
+        tris[:, 3] = (tree.order + prim_base).astype(_UINT).view(_FLOAT)
+        self.tris = Float(tris.ravel())
 
-    def _box(self, node: UInt32, o: Array3f, inv_d: Array3f, t_max: Float) -> Bool:
-        """Slab test of the node's box against the ray segment [0, t_max]."""
-        b0 = dr.gather(Array3f, self.bounds, node * 2)
-        b1 = dr.gather(Array3f, self.bounds, node * 2 + 1)
+    def _table(self, d: Array3f) -> UInt32:
+        """The first node of the layout for d's largest component (axis, sign)."""
+        a = dr.abs(d)
+        axis = dr.select((a.x >= a.y) & (a.x >= a.z), 0, dr.select(a.y >= a.z, 1, 2))
+        negative = dr.select(axis == 0, d.x, dr.select(axis == 1, d.y, d.z)) < 0
+        return (UInt32(axis) * 2 + dr.select(negative, 1, 0)) * self.n_nodes
+
+    def _node(self, table: UInt32, node: UInt32, o: Array3f, inv_d: Array3f, t_max: Float):
+        """The node's box slab-tested against the ray segment [0, t_max]; its miss link and leaf word."""
+        x = dr.gather(ArrayXf, self.nodes, table + node, shape=(8, dr.width(node)))
+        b0, b1 = Array3f(x[0], x[1], x[2]), Array3f(x[4], x[5], x[6])
         t0, t1 = (b0 - o) * inv_d, (b1 - o) * inv_d
         t_near = dr.max(dr.minimum(t0, t1))
         t_far = dr.min(dr.maximum(t0, t1))
-        return (t_near <= t_far) & (t_far >= 0) & (t_near <= t_max)
+        box = (t_near <= t_far) & (t_far >= 0) & (t_near <= t_max)
+        miss, word = (UInt32(dr.reinterpret_array(_UINT_JIT, x[k])) for k in (3, 7))
+        return box, miss, word
 
-    def _leaf(self, node, count, o, d, t_min, t_best, skip, target):
-        """The nearest hit among a leaf's triangles: (t, slot, b1, b2), t = inf if none."""
-        first = dr.gather(UInt32, self.first, node)
-        t_hit, slot, u_hit, v_hit = Float(INF), UInt32(0), Float(0), Float(0)
+    def _leaf(self, word, o, d, t_min, t_best, skip, target):
+        """The nearest hit among a leaf's triangles: (t, prim, b1, b2), t = inf if none."""
+        first, count = word >> 3, word & 7
+        t_hit, hit_prim, u_hit, v_hit = Float(INF), UInt32(0), Float(0), Float(0)
         for k in range(LEAF_SIZE):
             active = k < count
-            s = first + k
-            prim = dr.gather(UInt32, self.prim, s, active)
+            x = dr.gather(ArrayXf, self.tris, first + k, active, shape=(12, dr.width(first)))
+            prim = UInt32(dr.reinterpret_array(_UINT_JIT, x[3]))
             active &= prim != skip
             if target is not None:
                 active &= prim != target
-            t, b1, b2 = intersect.ray_triangle(
-                o, d, dr.gather(Array3f, self.v0, s, active), dr.gather(Array3f, self.e1, s, active),
-                dr.gather(Array3f, self.e2, s, active), t_min, t_best)
+            t, b1, b2 = intersect.ray_triangle(o, d, Array3f(x[0], x[1], x[2]), Array3f(x[4], x[5], x[6]),
+                                               Array3f(x[8], x[9], x[10]), t_min, t_best)
             closer = active & (t < t_hit)
-            t_hit, slot = dr.select(closer, t, t_hit), dr.select(closer, s, slot)
+            t_hit, hit_prim = dr.select(closer, t, t_hit), dr.select(closer, prim, hit_prim)
             u_hit, v_hit = dr.select(closer, b1, u_hit), dr.select(closer, b2, v_hit)
-        return t_hit, slot, u_hit, v_hit
+        return t_hit, hit_prim, u_hit, v_hit
 
     @dr.syntax
     def closest_hit(self, o: Array3f, d: Array3f, t_min, t_best: Float, prim: UInt32, b1: Float, b2: Float,
                     skip: UInt32):
         """Improves (t_best, prim, b1, b2) with the BVH's triangles."""
-        inv_d = dr.rcp(d)
+        inv_d, table = dr.rcp(d), self._table(d)
         node = UInt32(0)
         while node < self.n_nodes:
-            box = self._box(node, o, inv_d, t_best)
-            count = dr.gather(UInt32, self.count, node)
-            leaf = count > 0
+            box, miss, word = self._node(table, node, o, inv_d, t_best)
+            leaf = word != 0
             if box & leaf:   # a symbolic branch: skipped when no lane of a packet is at a leaf
-                t, slot, u, v = self._leaf(node, count, o, d, t_min, t_best, skip, None)
+                t, leaf_prim, u, v = self._leaf(word, o, d, t_min, t_best, skip, None)
                 closer = t < t_best
                 t_best = dr.select(closer, t, t_best)
-                prim = dr.select(closer, dr.gather(UInt32, self.prim, slot, closer), prim)
+                prim = dr.select(closer, leaf_prim, prim)
                 b1, b2 = dr.select(closer, u, b1), dr.select(closer, v, b2)
-            node = dr.select(box & ~leaf, node + 1, dr.gather(UInt32, self.miss, node))
+            node = dr.select(box & ~leaf, node + 1, miss)
         return t_best, prim, b1, b2
 
     @dr.syntax
     def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32) -> Bool:
         """Whether a BVH triangle other than skip and target lies on o + t d, 0 < t < dist."""
-        inv_d = dr.rcp(d)
+        inv_d, table = dr.rcp(d), self._table(d)
         node, blocked = UInt32(0), Bool(False)
         while (node < self.n_nodes) & ~blocked:
-            box = self._box(node, o, inv_d, dist)
-            count = dr.gather(UInt32, self.count, node)
-            leaf = count > 0
+            box, miss, word = self._node(table, node, o, inv_d, dist)
+            leaf = word != 0
             if box & leaf:
-                t, slot, u, v = self._leaf(node, count, o, d, 0.0, dist, skip, target)
+                t, _, _, _ = self._leaf(word, o, d, 0.0, dist, skip, target)
                 blocked = t < dist
-            node = dr.select(box & ~leaf, node + 1, dr.gather(UInt32, self.miss, node))
+            node = dr.select(box & ~leaf, node + 1, miss)
         return blocked

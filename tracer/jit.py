@@ -28,7 +28,8 @@ PRECISION = os.environ.get("TRACER_PRECISION", "single").lower()
 if PRECISION not in ("single", "double"):
     raise RuntimeError(f"TRACER_PRECISION must be 'single' or 'double', got '{PRECISION}'")
 # double: every kernel computes in float64 (random numbers stay float32, promoted), to tell rounding from bias
-Float, Array3f = (_backend.Float64, _backend.Array3f64) if PRECISION == "double" else (_backend.Float, _backend.Array3f)
+Float, Array3f, ArrayXf = (_backend.Float64, _backend.Array3f64, _backend.ArrayXf64) if PRECISION == "double" \
+    else (_backend.Float, _backend.Array3f, _backend.ArrayXf)
 
 INF = float("inf")
 NO_PRIM = 0xFFFFFFFF  # primitive index of "no primitive"
