@@ -89,7 +89,7 @@ def performance_scaling(curves: dict[str, list], path: Path) -> None:
     ax.plot(labels, [t for _, t in curves["max_depth"]], "o-")
     ax.set(xlabel="max_depth", title="path, 300 x 300, 16 spp")
     ax = axes[3]
-    for kind in ("bvh", "brute force"):
+    for kind in ("bvh", "brute force", "Mitsuba"):
         pts = [(n, t) for k, n, t in curves["triangles"] if k == kind]
         if pts:
             ax.loglog(*zip(*pts), "o-", label=kind)
