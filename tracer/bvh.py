@@ -20,6 +20,7 @@ unrolled registers was slower on small meshes.)
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import drjit as dr
 import numpy as np
@@ -44,9 +45,18 @@ class Tree:
     order: np.ndarray   # (triangles,) original triangle index of each leaf slot
     levels: list        # node index ranges (begin, end) of each depth, root first
 
-    @property
+    @cached_property
     def inner(self) -> np.ndarray:
         return self.left >= 0
+
+    @cached_property
+    def subtree(self) -> np.ndarray:
+        """(nodes,) nodes in each node's subtree, itself included."""
+        size = np.ones(len(self.left), np.int64)
+        for begin, end in self.levels[::-1]:   # bottom-up
+            node = begin + np.flatnonzero(self.inner[begin:end])
+            size[node] += size[self.left[node]] + size[self.right[node]]
+        return size
 
 
 def build(tri_vertices: np.ndarray) -> Tree:
@@ -72,14 +82,14 @@ def build(tri_vertices: np.ndarray) -> Tree:
         segment = np.repeat(np.arange(len(begin)), size)
         key = c[np.arange(len(ids)), np.argmax(extent, axis=1)[segment]]
         order[slots] = ids[np.lexsort((key, segment))]
-        n_split = int(split.sum())
-        child = n_nodes + 2 * np.arange(n_split)
-        left.append(np.where(split, 0, -1)), right.append(np.where(split, 0, -1))
-        left[-1][split], right[-1][split] = child, child + 1
+        child = np.full(len(begin), -1)
+        child[split] = n_nodes + 2 * np.arange(split.sum())
+        left.append(child)
+        right.append(np.where(split, child + 1, -1))
         half = size[split] // 2
         begin = np.stack([begin[split], begin[split] + half], 1).ravel()
         size = np.stack([half, size[split] - half], 1).ravel()
-        n_nodes += 2 * n_split
+        n_nodes += len(begin)
     cat = np.concatenate
     return Tree(cat(lo), cat(hi), cat(left), cat(right), cat(first), cat(count), order, levels)
 
@@ -93,12 +103,9 @@ def _ranges(begin: np.ndarray, size: np.ndarray) -> np.ndarray:
 def threaded_layout(tree: Tree, axis: int, sign: int) -> tuple[np.ndarray, np.ndarray]:
     """Depth-first positions of the nodes with the child nearer along sign * axis first, and each node's
     miss link (the position after its subtree)."""
-    subtree = np.ones(len(tree.left), np.int64)
-    for begin, end in tree.levels[::-1]:   # bottom-up
-        node = begin + np.flatnonzero(tree.inner[begin:end])
-        subtree[node] += subtree[tree.left[node]] + subtree[tree.right[node]]
+    subtree = tree.subtree
     position = np.zeros(len(tree.left), np.int64)
-    for begin, end in tree.levels:         # top-down
+    for begin, end in tree.levels:   # top-down
         node = begin + np.flatnonzero(tree.inner[begin:end])
         a, b = tree.left[node], tree.right[node]
         near_left = sign * (tree.lo[a, axis] + tree.hi[a, axis]) <= sign * (tree.lo[b, axis] + tree.hi[b, axis])

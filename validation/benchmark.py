@@ -211,6 +211,7 @@ def scaling(progress) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         for n in (100, 1000, 10_000, 100_000):
             scene = _sphere_scene(Path(tmp), n)
+            triangles = _triangles(scene)
             for kind, threshold in (("bvh", 0), ("brute force", 10**9), ("Mitsuba", None)):
                 if kind == "brute force" and n > 2000:
                     continue
@@ -220,7 +221,7 @@ def scaling(progress) -> dict:
                 else:
                     job = _tracer("path", size=256, scene=scene, spp=16, max_depth=4)
                     job["bvh_threshold"] = threshold
-                curves["triangles"].append((kind, _triangles(scene), measure(job)["median"]))
+                curves["triangles"].append((kind, triangles, measure(job)["median"]))
     return curves
 
 
