@@ -4,8 +4,8 @@ import pytest
 
 import tracer
 import tracer.geometry as geometry
-from tracer.bvh import BVHKernel, build, threaded_layout
-from tracer.jit import NO_PRIM, Array3f, Float, UInt32
+from tracer.bvh import BVHKernel, _aligned, build, threaded_layout
+from tracer.jit import NO_PRIM, Array3f, Bool, Float, UInt32
 
 from .conftest import SCENES
 
@@ -104,3 +104,15 @@ def test_bvh_closest_hits_and_shadow_rays_on_a_large_mesh():
     assert np.array_equal(blocked, hit)
     shorter = kernel.occluded(o, d, Float(np.where(hit, t_ref * 0.999, 10.0)), UInt32(NO_PRIM), UInt32(NO_PRIM))
     assert not shorter.numpy()[hit].any()
+    active = np.arange(n) % 3 != 0   # inactive lanes answer False, active ones as before
+    masked = kernel.occluded(o, d, Float(dist), UInt32(NO_PRIM), UInt32(NO_PRIM), Bool(active)).numpy()
+    assert np.array_equal(masked, hit & active)
+
+
+@pytest.mark.parametrize("offset", range(5))
+def test_device_tables_start_on_a_cache_line(offset):
+    """Dr.Jit turns gathers into packet loads only from aligned memory."""
+    a = np.arange(1000, dtype=np.float32)[offset:]
+    out = _aligned(a)
+    assert out.ctypes.data % 64 == 0 and out.dtype == a.dtype
+    np.testing.assert_array_equal(out, a)

@@ -11,7 +11,8 @@ packet of lanes skips when none of them is at a leaf.
 
 A node is eight values, gathered in one packet load: its box's min corner, its miss link, its max corner
 and its leaf word (first triangle * 8 + count, 0 for an inner node). A triangle is twelve: v0, its
-primitive id, e1, 0, e2, 0. The integers are stored as the bits of floats.
+primitive id, e1, 0, e2, 0. The integers are stored as the bits of floats. Both tables start on a cache
+line: from memory it finds unaligned, Dr.Jit gathers value by value instead.
 
 (A per-lane stack, which would let a step test both children's boxes, is not used: Dr.Jit 1.5's local
 memory (dr.alloc_local) lost pushed entries in this traversal on the LLVM backend, and a stack held in
@@ -132,12 +133,12 @@ class BVHKernel:
                 table[position, 3] = miss.astype(_UINT).view(_FLOAT)
                 table[position, 7] = leaf_word.view(_FLOAT)
                 tables.append(table)
-        self.nodes = Float(np.concatenate(tables).ravel())
+        self.nodes = Float(_aligned(np.concatenate(tables).ravel()))
         v = tri_vertices[tree.order]
         tris = np.zeros((len(v), 12), _FLOAT)
         tris[:, 0:3], tris[:, 4:7], tris[:, 8:11] = v[:, 0], v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
         tris[:, 3] = (tree.order + prim_base).astype(_UINT).view(_FLOAT)
-        self.tris = Float(tris.ravel())
+        self.tris = Float(_aligned(tris.ravel()))
 
     def _table(self, d: Array3f) -> UInt32:
         """The first node of the layout for d's largest component (axis, sign)."""
@@ -148,7 +149,8 @@ class BVHKernel:
 
     def _node(self, table: UInt32, node: UInt32, o: Array3f, inv_d: Array3f, t_max: Float):
         """The node's box slab-tested against the ray segment [0, t_max]; its miss link and leaf word."""
-        x = dr.gather(ArrayXf, self.nodes, table + node, shape=(8, dr.width(node)))
+        index = table + node
+        x = dr.gather(ArrayXf, self.nodes, index, shape=(8, dr.width(index)))
         b0, b1 = Array3f(x[0], x[1], x[2]), Array3f(x[4], x[5], x[6])
         t0, t1 = (b0 - o) * inv_d, (b1 - o) * inv_d
         t_near = dr.max(dr.minimum(t0, t1))
@@ -194,10 +196,12 @@ class BVHKernel:
         return t_best, prim, b1, b2
 
     @dr.syntax
-    def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32) -> Bool:
-        """Whether a BVH triangle other than skip and target lies on o + t d, 0 < t < dist."""
+    def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32,
+                 active: Bool = True) -> Bool:
+        """Whether a BVH triangle other than skip and target lies on o + t d, 0 < t < dist; False where
+        not active (such lanes skip the traversal)."""
         inv_d, table = dr.rcp(d), self._table(d)
-        node, blocked = UInt32(0), Bool(False)
+        node, blocked = dr.select(active, UInt32(0), self.n_nodes), Bool(False)
         while (node < self.n_nodes) & ~blocked:
             box, miss, word = self._node(table, node, o, inv_d, dist)
             leaf = word != 0
@@ -206,3 +210,13 @@ class BVHKernel:
                 blocked = t < dist
             node = dr.select(box & ~leaf, node + 1, miss)
         return blocked
+
+
+def _aligned(a: np.ndarray, alignment: int = 64) -> np.ndarray:
+    """A copy of `a` starting on an `alignment`-byte boundary. Dr.Jit wraps a NumPy array's memory as it
+    is, and gathers from memory it finds unaligned as separate loads instead of packet loads."""
+    buffer = np.empty(a.nbytes + alignment, np.uint8)
+    start = -buffer.ctypes.data % alignment
+    out = buffer[start:start + a.nbytes].view(a.dtype)
+    out[:] = a.ravel()
+    return out

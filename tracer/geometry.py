@@ -182,13 +182,15 @@ class SceneGeometry:
         inset = intersect.inset_point(origin, e1, e2, b1, b2, prim < self.n_rects)
         return dr.select(planar, inset, p)
 
-    def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32) -> Bool:
-        """Whether anything but `skip` and `target` lies on the segment o + t d, 0 < t < dist."""
+    def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32,
+                 active: Bool = True) -> Bool:
+        """Whether anything but `skip` and `target` lies on the segment o + t d, 0 < t < dist. Lanes that
+        are not active may answer either way; only the BVH skips work for them."""
         blocked = Bool(False)
         for i, t, _, _ in self._candidates(o, d, 0.0, skip, target, self.occluders):
             blocked |= t < dist
         if self.bvh is not None:
-            blocked |= self.bvh.occluded(o, d, dr.select(blocked, 0.0, dist), skip, target)
+            blocked |= self.bvh.occluded(o, d, dist, skip, target, active & ~blocked)
         return blocked
 
     def _candidates(self, o, d, t_min, skip, target=None, only=None):

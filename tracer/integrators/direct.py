@@ -26,7 +26,7 @@ class DirectSample:
     value: Array3f    # f * Le * cos_x * cos_y / (d^2 * pdf_area): one term of eq. 10, A = 1 / pdf_area
     pdf_light: Float  # the same sample's density in solid angle, for MIS
     cos_x: Float
-    occluded: Bool
+    occluded: Bool    # meaningful where the sample is lit (cos_x, cos_y > 0)
 
 
 def sample_direct(geo: SceneGeometry, surf: Surface, ns: Array3f, albedo: Array3f,
@@ -40,7 +40,7 @@ def sample_direct(geo: SceneGeometry, surf: Surface, ns: Array3f, albedo: Array3
     cos_x = dr.dot(ns, w)
     cos_y = -dr.dot(ls.n, w)
     lit = active & (cos_x > 0) & (cos_y > 0) & (dist2 > 0)
-    occluded = geo.occluded(surf.p, w, dist, surf.prim, ls.prim)
+    occluded = geo.occluded(surf.p, w, dist, surf.prim, ls.prim, lit)   # traced only where it counts
     geometry_term = cos_x * cos_y / dist2
     value = diffuse_brdf(albedo) * ls.radiance * (geometry_term / ls.pdf_area)
     ok = lit & ~occluded
