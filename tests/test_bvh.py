@@ -4,8 +4,10 @@ import pytest
 
 import tracer
 import tracer.geometry as geometry
+import drjit as dr
+
 from tracer.bvh import BVHKernel, _aligned, build, threaded_layout
-from tracer.jit import NO_PRIM, Array3f, Bool, Float, UInt32
+from tracer.jit import NO_PRIM, Array3f, ArrayXu, Bool, Float, UInt32
 
 from .conftest import SCENES
 
@@ -107,6 +109,21 @@ def test_bvh_closest_hits_and_shadow_rays_on_a_large_mesh():
     active = np.arange(n) % 3 != 0   # inactive lanes answer False, active ones as before
     masked = kernel.occluded(o, d, Float(dist), UInt32(NO_PRIM), UInt32(NO_PRIM), Bool(active)).numpy()
     assert np.array_equal(masked, hit & active)
+
+
+@pytest.mark.parametrize("offset, extent", [(0.0, 1.0), (1e4, 1.0), (-3.0, 1e-5), (0.0, 0.0)])
+def test_decoded_node_boxes_contain_their_triangles(offset, extent):
+    """The kernel's decoded 16-bit corners bound every node's box, at most a few grid steps (or float
+    spacings) wider; also for a mesh far from the origin, a thin one, and a flat one (extent 0 along z)."""
+    rng = np.random.default_rng(7)
+    tris = offset + rng.uniform(0, 1, (3000, 3, 3)) * [1.0, 1.0, extent]
+    kernel, tree = BVHKernel(tris, prim_base=0), build(tris)
+    position, _ = threaded_layout(tree, 0, 1)
+    words = dr.gather(ArrayXu, kernel.nodes, UInt32(position), shape=(4, len(position)))
+    lo, hi = (c.numpy().T for c in kernel.grid.corners(words))
+    assert (lo <= tree.lo).all() and (hi >= tree.hi).all()
+    slack = 3 * kernel.grid.step.astype(np.float64) + 2 * np.spacing(np.abs(tree.lo).astype(lo.dtype))
+    assert (tree.lo - lo <= slack).all() and (hi - tree.hi <= slack).all()
 
 
 @pytest.mark.parametrize("offset", range(5))

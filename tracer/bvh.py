@@ -9,10 +9,13 @@ the miss link. A ray walks the layout of its largest direction component, so it 
 first and its shrinking closest hit culls the far boxes. A leaf's triangles are tested in a branch that a
 packet of lanes skips when none of them is at a leaf.
 
-A node is eight values, gathered in one packet load: its box's min corner, its miss link, its max corner
-and its leaf word (first triangle * 8 + count, 0 for an inner node). A triangle is twelve: v0, its
-primitive id, e1, 0, e2, 0. The integers are stored as the bits of floats. Both tables start on a cache
-line: from memory it finds unaligned, Dr.Jit gathers value by value instead.
+A node is four 32-bit words (16 bytes), gathered in one packet load: its box's corners as 16-bit
+coordinates on a grid over the root box, rounded outwards (the kernel decodes them with one fma each),
+and a link: an inner node's miss link, or for a leaf (whose miss link is always the next node) its
+first triangle * 8 + count with the top bit set. Half the size of float corners, the six layouts of a
+large mesh stay twice as long in cache. A triangle is twelve values: v0, its primitive id, e1, 0, e2, 0
+(the id stored as the bits of a float). Both tables start on a cache line: from memory it finds
+unaligned, Dr.Jit gathers value by value instead of in packets.
 
 (A per-lane stack, which would let a step test both children's boxes, is not used: Dr.Jit 1.5's local
 memory (dr.alloc_local) lost pushed entries in this traversal on the LLVM backend, and a stack held in
@@ -27,9 +30,11 @@ import drjit as dr
 import numpy as np
 
 from . import intersect
-from .jit import INF, PRECISION, Array3f, ArrayXf, Bool, Float, UInt32, UInt64
+from .jit import INF, PRECISION, Array3f, ArrayXf, ArrayXu, Bool, Float, UInt32, UInt64
 
 LEAF_SIZE = 2
+GRID = 0xFFFF          # largest grid coordinate of a node's box corner
+LEAF_BIT = 1 << 31     # marks a leaf's link word
 _FLOAT, _UINT = (np.float64, np.uint64) if PRECISION == "double" else (np.float32, np.uint32)
 _UINT_JIT = UInt64 if PRECISION == "double" else UInt32
 
@@ -116,6 +121,40 @@ def threaded_layout(tree: Tree, axis: int, sign: int) -> tuple[np.ndarray, np.nd
     return position, position + subtree
 
 
+class BoxGrid:
+    """A 16-bit grid over the root box [lo, hi]: corner q of a node lies at origin + q * step, both
+    float32 (so that the decoding fma, in either precision, works on exact products)."""
+
+    def __init__(self, lo: np.ndarray, hi: np.ndarray):
+        lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+        reach = np.maximum(np.abs(lo), np.abs(hi))
+        pad = np.maximum(np.maximum(hi - lo, reach) * 2.0 ** -20, 1e-30)   # many float32 ulps
+        self.origin = (lo - pad).astype(np.float32)
+        self.step = ((hi + pad - self.origin) / GRID).astype(np.float32)
+
+    def decode(self, q: np.ndarray) -> np.ndarray:
+        """Corners (n, 3) as the kernel computes them: the exact origin + q * step, rounded once."""
+        return (q * self.step.astype(np.float64) + self.origin).astype(_FLOAT)
+
+    def quantize(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Grid corners (q_lo, q_hi) of boxes (n, 3), a step beyond them on every side; decoded, they
+        contain the boxes."""
+        step, origin = self.step.astype(np.float64), self.origin.astype(np.float64)
+        q_lo = np.clip(np.floor((lo - origin) / step) - 1, 0, GRID).astype(np.int64)
+        q_hi = np.clip(np.ceil((hi - origin) / step) + 1, 0, GRID).astype(np.int64)
+        while (low := self.decode(q_lo) > lo).any():     # rounding: at most a step more (decode(0) < lo)
+            q_lo -= low
+        while (high := self.decode(q_hi) < hi).any():    # decode(GRID) > hi
+            q_hi += high
+        return q_lo, q_hi
+
+    def corners(self, x: ArrayXu) -> tuple[Array3f, Array3f]:
+        """A node's decoded (min, max) corners from its first three words."""
+        coords = (x[0] & GRID, x[0] >> 16, x[1] & GRID), (x[1] >> 16, x[2] & GRID, x[2] >> 16)
+        return tuple(Array3f(*(dr.fma(Float(q), float(s), float(o)) for q, s, o in zip(c, self.step, self.origin)))
+                     for c in coords)
+
+
 class BVHKernel:
     """The BVH's six threaded layouts and triangles on the device, and their traversal; triangle ids are
     offset by `prim_base`."""
@@ -123,17 +162,20 @@ class BVHKernel:
     def __init__(self, tri_vertices: np.ndarray, prim_base: int):
         tree = build(tri_vertices)
         self.n_nodes = len(tree.left)
-        leaf_word = (tree.first * 8 + tree.count).astype(_UINT)
+        self.grid = BoxGrid(tree.lo[0], tree.hi[0])
+        q_lo, q_hi = self.grid.quantize(tree.lo, tree.hi)
+        boxes = np.stack([q_lo[:, 0] | q_lo[:, 1] << 16, q_lo[:, 2] | q_hi[:, 0] << 16,
+                          q_hi[:, 1] | q_hi[:, 2] << 16], 1).astype(np.uint32)
+        leaf_word = LEAF_BIT | (tree.first * 8 + tree.count)
         tables = []
         for axis in range(3):
             for sign in (1, -1):
                 position, miss = threaded_layout(tree, axis, sign)
-                table = np.empty((self.n_nodes, 8), _FLOAT)
-                table[position, 0:3], table[position, 4:7] = tree.lo, tree.hi
-                table[position, 3] = miss.astype(_UINT).view(_FLOAT)
-                table[position, 7] = leaf_word.view(_FLOAT)
+                table = np.empty((self.n_nodes, 4), np.uint32)
+                table[position, :3] = boxes
+                table[position, 3] = np.where(tree.count > 0, leaf_word, miss)
                 tables.append(table)
-        self.nodes = Float(_aligned(np.concatenate(tables).ravel()))
+        self.nodes = UInt32(_aligned(np.concatenate(tables)))
         v = tri_vertices[tree.order]
         tris = np.zeros((len(v), 12), _FLOAT)
         tris[:, 0:3], tris[:, 4:7], tris[:, 8:11] = v[:, 0], v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
@@ -148,16 +190,17 @@ class BVHKernel:
         return (UInt32(axis) * 2 + dr.select(negative, 1, 0)) * self.n_nodes
 
     def _node(self, table: UInt32, node: UInt32, o: Array3f, inv_d: Array3f, t_max: Float):
-        """The node's box slab-tested against the ray segment [0, t_max]; its miss link and leaf word."""
+        """The node's box slab-tested against the ray segment [0, t_max]; its miss link and leaf word (first
+        triangle * 8 + count, 0 for an inner node)."""
         index = table + node
-        x = dr.gather(ArrayXf, self.nodes, index, shape=(8, dr.width(index)))
-        b0, b1 = Array3f(x[0], x[1], x[2]), Array3f(x[4], x[5], x[6])
+        x = dr.gather(ArrayXu, self.nodes, index, shape=(4, dr.width(index)))
+        b0, b1 = self.grid.corners(x)
         t0, t1 = (b0 - o) * inv_d, (b1 - o) * inv_d
         t_near = dr.max(dr.minimum(t0, t1))
         t_far = dr.min(dr.maximum(t0, t1))
         box = (t_near <= t_far) & (t_far >= 0) & (t_near <= t_max)
-        miss, word = (UInt32(dr.reinterpret_array(_UINT_JIT, x[k])) for k in (3, 7))
-        return box, miss, word
+        leaf = x[3] >= LEAF_BIT
+        return box, dr.select(leaf, node + 1, x[3]), dr.select(leaf, x[3] & (LEAF_BIT - 1), 0)
 
     def _leaf(self, word, o, d, t_min, t_best, skip, target):
         """The nearest hit among a leaf's triangles: (t, prim, b1, b2), t = inf if none."""

@@ -24,6 +24,7 @@ def _pick_backend():
 
 _backend, BACKEND = _pick_backend()
 UInt32, UInt64, Int32, Bool, PCG32 = _backend.UInt32, _backend.UInt64, _backend.Int32, _backend.Bool, _backend.PCG32
+ArrayXu = _backend.ArrayXu
 PRECISION = os.environ.get("TRACER_PRECISION", "single").lower()
 if PRECISION not in ("single", "double"):
     raise RuntimeError(f"TRACER_PRECISION must be 'single' or 'double', got '{PRECISION}'")
