@@ -12,8 +12,8 @@ packet of lanes skips when none of them is at a leaf.
 A node is four 32-bit words (16 bytes), gathered in one packet load: its box's corners as 16-bit
 coordinates on a grid over the root box, rounded outwards (the kernel decodes them with one fma each),
 and a link: an inner node's miss link, or for a leaf (whose miss link is always the next node) its
-first triangle * 8 + count with the top bit set. Half the size of float corners, the six layouts of a
-large mesh stay twice as long in cache. A triangle is twelve values: v0, its primitive id, e1, 0, e2, 0
+first triangle * 8 + count with the top bit set (half the size of float corners, so a large mesh's six
+layouts take half the cache). A triangle is twelve values: v0, its primitive id, e1, 0, e2, 0
 (the id stored as the bits of a float). Both tables start on a cache line: from memory it finds
 unaligned, Dr.Jit gathers value by value instead of in packets.
 
