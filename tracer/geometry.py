@@ -104,9 +104,10 @@ class SceneGeometry:
         self.prim_radiance = Float(radiance.ravel())
         self.prim_light_pdf = Float(light_pdf)
         self.corner_normals = Float(corner_normals.ravel())
-        frames = [[r.center, *r.edges] for r in self.rects]
-        frames += [[v[0], v[1] - v[0], v[2] - v[0]] for v in self.tri_vertices]
-        self.prim_frame = Float(np.array(frames or np.zeros((1, 3, 3))).ravel())
+        tv = self.tri_vertices
+        frames = np.concatenate([np.array([[r.center, *r.edges] for r in self.rects]).reshape(-1, 3, 3),
+                                 np.stack([tv[:, 0], tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0]], 1)])
+        self.prim_frame = Float((frames if len(frames) else np.zeros((1, 3, 3))).ravel())
         materials = self.materials or [BSDF("diffuse", (0.0, 0.0, 0.0))]
         self.mat_albedo = Float(np.array([b.reflectance for b in materials]).ravel())
         self.mat_kind = UInt32([_KIND_CODE[b.kind] for b in materials])
