@@ -236,6 +236,28 @@ def test_malformed_mesh_file(tmp_path):
     assert "bad.obj:4" in message                          # and the OBJ's own line
 
 
+def test_binary_mesh_file(tmp_path):
+    (tmp_path / "blob.obj").write_bytes(bytes(range(256)))
+    path = write_scene(tmp_path, '<shape type="obj"><string name="filename" value="blob.obj"/></shape>')
+    message = scene_error(path)
+    assert_located(message, path, line_of(path, 'type="obj"'))
+    assert "blob.obj" in message and "not a text" in message
+
+
+def test_a_shared_mesh_file_is_read_once_until_it_changes(tmp_path):
+    from tracer.meshes import _read_obj
+
+    mesh = tmp_path / "tri.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    shape = '<shape type="obj"><string name="filename" value="tri.obj"/></shape>'
+    path = write_scene(tmp_path, shape + shape)
+    misses = _read_obj.cache_info().misses
+    a, b = load_scene(path).meshes
+    assert _read_obj.cache_info().misses == misses + 1 and not a.faces.flags.writeable
+    mesh.write_text("v 0 0 0\nv 2.5 0 0\nv 0 1 0\nf 1 2 3\n")   # another size, whatever the clock
+    assert load_scene(path).meshes[0].vertices[:, 0].max() == 2.5
+
+
 @pytest.mark.parametrize("body,snippet,bad", [
     ('<shape type="sphere">\n        <float name="radius" value="nan"/>\n    </shape>', 'value="nan"', "nan"),
     ('<shape type="rectangle"><transform name="to_world">\n        <translate x="inf"/>\n'

@@ -1,6 +1,7 @@
 """Reading triangle meshes (Wavefront OBJ) and computing Mitsuba's smooth vertex normals."""
 from __future__ import annotations
 
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -11,17 +12,26 @@ class MeshError(ValueError):
 
 
 def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Vertices, triangles and per-vertex normals (None when the file has none).
+    """Vertices, triangles and per-vertex normals (None when the file has none), as read-only arrays.
 
-    Vertices are keyed by their (position, normal) index pair as Mitsuba does; polygons are fanned.
+    Vertices are keyed by their (position, normal) index pair as Mitsuba does; polygons are fanned. A file
+    that several shapes share is read once (until it changes).
     """
+    try:
+        stat = path.stat()
+        return _read_obj(path.resolve(), stat.st_size, stat.st_mtime_ns)
+    except OSError as e:
+        raise MeshError(f"cannot read mesh {path}: {e.strerror}") from None
+    except UnicodeDecodeError:
+        raise MeshError(f"{path}: not a text (Wavefront OBJ) file") from None
+
+
+@lru_cache(maxsize=16)
+def _read_obj(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     positions, normals = [], []
     keys: dict[tuple[int, int], int] = {}
     faces = []
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise MeshError(f"cannot read mesh {path}: {e.strerror}") from None
+    text = path.read_text()
     for lineno, line in enumerate(text.splitlines(), 1):
         parts = line.split()
         if not parts or parts[0].startswith("#"):
@@ -48,7 +58,11 @@ def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     if normals and all(k[1] >= 0 for k in order):
         vn = np.asarray(normals, float)[[k[1] for k in order]]
         vn /= np.linalg.norm(vn, axis=1, keepdims=True)
-    return vertices, np.asarray(faces, np.int64), vn
+    out = vertices, np.asarray(faces, np.int64), vn
+    for a in out:
+        if a is not None:
+            a.flags.writeable = False
+    return out
 
 
 def _corner(token: str, n_pos: int, n_norm: int) -> tuple[int, int]:
