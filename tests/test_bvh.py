@@ -6,7 +6,7 @@ import tracer
 import tracer.geometry as geometry
 import drjit as dr
 
-from tracer.bvh import BVHKernel, _aligned, build, threaded_layout
+from tracer.bvh import LEAF_BIT, LEAF_SIZE, BVHKernel, _aligned, build, depth_first
 from tracer.jit import NO_PRIM, Array3f, ArrayXu, Bool, Float, UInt32
 
 from .conftest import SCENES
@@ -51,23 +51,34 @@ def test_bvh_matches_brute_force(monkeypatch, skip_prim):
                                   bvh.occluded(o, d, dist, skip, UInt32(NO_PRIM)).numpy())
 
 
-def test_threaded_layouts_are_depth_first_with_the_near_child_first():
-    tris = np.random.default_rng(3).uniform(-1, 1, (500, 3, 3))
-    tree = build(tris)
-    inner = np.flatnonzero(tree.inner)
-    for axis in range(3):
-        for sign in (1, -1):
-            position, miss = threaded_layout(tree, axis, sign)
-            assert sorted(position) == list(range(len(position)))
-            assert miss[0] == len(position)   # the root's subtree is the whole tree
-            for node in inner:
-                a, b = tree.left[node], tree.right[node]
-                near, far = (a, b) if position[a] < position[b] else (b, a)
-                assert position[near] == position[node] + 1   # a hit box descends to the next node
-                assert position[far] == miss[near]            # the near subtree's miss link is the far child
-                assert miss[far] == miss[node]                # the far subtree ends where its parent's does
-                centre = tree.lo[:, axis] + tree.hi[:, axis]
-                assert sign * centre[near] <= sign * centre[far]
+def test_depth_first_order_puts_each_subtree_in_one_run():
+    tree = build(np.random.default_rng(3).uniform(-1, 1, (500, 3, 3)))
+    position, size = depth_first(tree), tree.subtree
+    assert sorted(position) == list(range(len(position)))
+    for node in np.flatnonzero(tree.inner):
+        left, right = tree.left[node], tree.right[node]
+        assert position[left] == position[node] + 1 and position[right] == position[left] + size[left]
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 500])
+def test_node_table_reaches_every_triangle_once(n):
+    """Walked on the host from the root row, the table's links reach each triangle exactly once, and each
+    inner row's links name rows of the children the tree gives it."""
+    tris = np.random.default_rng(n).uniform(-1, 1, (n, 3, 3))
+    kernel = BVHKernel(tris, prim_base=0)
+    table = np.asarray(kernel.nodes).reshape(-1, 8)
+    assert kernel.rows[0] == 0   # the root comes first
+    reached, pending = [], [0]
+    while pending:
+        row = table[pending.pop()]
+        for link in row[3], row[7]:
+            if link >= LEAF_BIT:
+                first, count = (link - LEAF_BIT) >> 3, (link - LEAF_BIT) & 7
+                reached += range(first, first + count)
+            else:
+                pending.append(link)
+    expected = sorted(list(range(n)) * (2 if n <= LEAF_SIZE else 1))   # a lone leaf is both children of its root
+    assert sorted(reached) == expected
 
 
 def _numpy_closest_hits(o, d, tris):
@@ -118,12 +129,12 @@ def test_decoded_node_boxes_contain_their_triangles(offset, extent):
     rng = np.random.default_rng(7)
     tris = offset + rng.uniform(0, 1, (3000, 3, 3)) * [1.0, 1.0, extent]
     kernel, tree = BVHKernel(tris, prim_base=0), build(tris)
-    position, _ = threaded_layout(tree, 0, 1)
-    words = dr.gather(ArrayXu, kernel.nodes, UInt32(position), shape=(4, len(position)))
-    lo, hi = (c.numpy().T for c in kernel.grid.corners(words))
-    assert (lo <= tree.lo).all() and (hi >= tree.hi).all()
-    slack = 3 * kernel.grid.step.astype(np.float64) + 2 * np.spacing(np.abs(tree.lo).astype(lo.dtype))
-    assert (tree.lo - lo <= slack).all() and (hi - tree.hi <= slack).all()
+    words = dr.gather(ArrayXu, kernel.nodes, dr.arange(UInt32, len(kernel.rows)), shape=(8, len(kernel.rows)))
+    for k, child in enumerate((tree.left[kernel.rows], tree.right[kernel.rows])):
+        lo, hi = (c.numpy().T for c in kernel.grid.corners([words[4 * k + i] for i in range(3)]))
+        assert (lo <= tree.lo[child]).all() and (hi >= tree.hi[child]).all()
+        slack = 3 * kernel.grid.step.astype(np.float64) + 2 * np.spacing(np.abs(tree.lo[child]).astype(lo.dtype))
+        assert (tree.lo[child] - lo <= slack).all() and (hi - tree.hi[child] <= slack).all()
 
 
 @pytest.mark.parametrize("offset", range(5))

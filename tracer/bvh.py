@@ -1,25 +1,19 @@
 """A bounding volume hierarchy over triangles: built on the host, traversed in the kernel.
 
 The tree splits at the median centroid along the longest axis (built one level at a time, vectorised);
-leaves hold up to LEAF_SIZE triangles. The kernel walks it without a stack, as a multiple-threaded BVH
-(Hachisuka's MTBVH): the tree is laid out in depth-first order six times, once per major ray direction
-(+x, -x, +y, ...), with the child nearer along that direction first. Each node carries a "miss" link to
-the node after its subtree: a hit inner box goes on to node + 1, a missed box or a finished leaf jumps to
-the miss link. A ray walks the layout of its largest direction component, so it meets near triangles
-first and its shrinking closest hit culls the far boxes. A leaf's triangles are tested in a branch that a
-packet of lanes skips when none of them is at a leaf.
+leaves hold up to LEAF_SIZE triangles. The kernel stores each inner node as the boxes of its two children,
+so that one step tests both, and walks the tree depth first, nearer child first, with a per-lane stack of
+the far children still to visit: the shrinking closest hit then culls the far boxes. The stack lives in
+registers, one loop variable per tree level (selects on the stack pointer push and pop), since Dr.Jit
+1.5's local memory (dr.alloc_local) lost pushed entries on the LLVM backend. A child leaf's triangles are
+tested in a branch that a packet of lanes skips when none of them reaches a leaf.
 
-A node is four 32-bit words (16 bytes), gathered in one packet load: its box's corners as 16-bit
-coordinates on a grid over the root box, rounded outwards (the kernel decodes them with one fma each),
-and a link: an inner node's miss link, or for a leaf (whose miss link is always the next node) its
-first triangle * 8 + count with the top bit set (half the size of float corners, so a large mesh's six
-layouts take half the cache). A triangle is twelve values: v0, its primitive id, e1, 0, e2, 0
-(the id stored as the bits of a float). Both tables start on a cache line: from memory it finds
-unaligned, Dr.Jit gathers value by value instead of in packets.
-
-(A per-lane stack, which would let a step test both children's boxes, is not used: Dr.Jit 1.5's local
-memory (dr.alloc_local) lost pushed entries in this traversal on the LLVM backend, and a stack held in
-unrolled registers was slower on small meshes.)
+An inner node is eight 32-bit words (32 bytes), gathered in one packet load: per child, its box's corners
+as 16-bit coordinates on a grid over the root box, rounded outwards (the kernel decodes them with one fma
+each), and a link: the child's node index, or for a leaf its first triangle * 8 + count with the top bit
+set. A triangle is twelve values: v0, its primitive id, e1, 0, e2, 0 (the id stored as the bits of a
+float). Both tables start on a cache line: from memory it finds unaligned, Dr.Jit gathers value by value
+instead of in packets.
 """
 from __future__ import annotations
 
@@ -106,19 +100,15 @@ def _ranges(begin: np.ndarray, size: np.ndarray) -> np.ndarray:
     return offset + np.arange(size.sum())
 
 
-def threaded_layout(tree: Tree, axis: int, sign: int) -> tuple[np.ndarray, np.ndarray]:
-    """Depth-first positions of the nodes with the child nearer along sign * axis first, and each node's
-    miss link (the position after its subtree)."""
-    subtree = tree.subtree
+def depth_first(tree: Tree) -> np.ndarray:
+    """Each node's position in a depth-first (left child first) order of the tree."""
+    size = tree.subtree
     position = np.zeros(len(tree.left), np.int64)
     for begin, end in tree.levels:   # top-down
         node = begin + np.flatnonzero(tree.inner[begin:end])
-        a, b = tree.left[node], tree.right[node]
-        near_left = sign * (tree.lo[a, axis] + tree.hi[a, axis]) <= sign * (tree.lo[b, axis] + tree.hi[b, axis])
-        near, far = np.where(near_left, a, b), np.where(near_left, b, a)
-        position[near] = position[node] + 1
-        position[far] = position[node] + 1 + subtree[near]
-    return position, position + subtree
+        position[tree.left[node]] = position[node] + 1
+        position[tree.right[node]] = position[node] + 1 + size[tree.left[node]]
+    return position
 
 
 class BoxGrid:
@@ -148,59 +138,85 @@ class BoxGrid:
             q_hi += high
         return q_lo, q_hi
 
-    def corners(self, x: ArrayXu) -> tuple[Array3f, Array3f]:
-        """A node's decoded (min, max) corners from its first three words."""
+    def corners(self, x: list[UInt32]) -> tuple[Array3f, Array3f]:
+        """A box's decoded (min, max) corners from its three words."""
         coords = (x[0] & GRID, x[0] >> 16, x[1] & GRID), (x[1] >> 16, x[2] & GRID, x[2] >> 16)
         return tuple(Array3f(*(dr.fma(Float(q), float(s), float(o)) for q, s, o in zip(c, self.step, self.origin)))
                      for c in coords)
 
 
 class BVHKernel:
-    """The BVH's six threaded layouts and triangles on the device, and their traversal; triangle ids are
-    offset by `prim_base`."""
+    """The BVH's inner nodes and triangles on the device, and their traversal; triangle ids are offset by
+    `prim_base`."""
 
     def __init__(self, tri_vertices: np.ndarray, prim_base: int):
         tree = build(tri_vertices)
-        self.n_nodes = len(tree.left)
         self.grid = BoxGrid(tree.lo[0], tree.hi[0])
         q_lo, q_hi = self.grid.quantize(tree.lo, tree.hi)
         boxes = np.stack([q_lo[:, 0] | q_lo[:, 1] << 16, q_lo[:, 2] | q_hi[:, 0] << 16,
                           q_hi[:, 1] | q_hi[:, 2] << 16], 1).astype(np.uint32)
-        leaf_word = LEAF_BIT | (tree.first * 8 + tree.count)
-        tables = []
-        for axis in range(3):
-            for sign in (1, -1):
-                position, miss = threaded_layout(tree, axis, sign)
-                table = np.empty((self.n_nodes, 4), np.uint32)
-                table[position, :3] = boxes
-                table[position, 3] = np.where(tree.count > 0, leaf_word, miss)
-                tables.append(table)
-        self.nodes = UInt32(_aligned(np.concatenate(tables)))
+        inner = np.flatnonzero(tree.inner)
+        inner = inner[np.argsort(depth_first(tree)[inner])]
+        index = np.zeros(len(tree.left), np.int64)
+        index[inner] = np.arange(len(inner))
+        link = np.where(tree.inner, index, LEAF_BIT | (tree.first * 8 + tree.count))
+        if not len(inner):   # a single leaf: a root with it as both children
+            inner, tree.left[0], tree.right[0] = np.array([0]), 0, 0
+        self.rows = inner   # the tree node of each table row
+        nodes = np.empty((len(inner), 8), np.uint32)
+        for column, child in ((0, tree.left[inner]), (4, tree.right[inner])):
+            nodes[:, column:column + 3], nodes[:, column + 3] = boxes[child], link[child]
+        self.nodes = UInt32(_aligned(nodes))
+        self.stack_size = len(tree.levels)   # one pending far child per level at most
         v = tri_vertices[tree.order]
         tris = np.zeros((len(v), 12), _FLOAT)
         tris[:, 0:3], tris[:, 4:7], tris[:, 8:11] = v[:, 0], v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
         tris[:, 3] = (tree.order + prim_base).astype(_UINT).view(_FLOAT)
         self.tris = Float(_aligned(tris.ravel()))
 
-    def _table(self, d: Array3f) -> UInt32:
-        """The first node of the layout for d's largest component (axis, sign)."""
-        a = dr.abs(d)
-        axis = dr.select((a.x >= a.y) & (a.x >= a.z), 0, dr.select(a.y >= a.z, 1, 2))
-        negative = dr.select(axis == 0, d.x, dr.select(axis == 1, d.y, d.z)) < 0
-        return (UInt32(axis) * 2 + dr.select(negative, 1, 0)) * self.n_nodes
-
-    def _node(self, table: UInt32, node: UInt32, o: Array3f, inv_d: Array3f, t_max: Float):
-        """The node's box slab-tested against the ray segment [0, t_max]; its miss link and leaf word (first
-        triangle * 8 + count, 0 for an inner node)."""
-        index = table + node
-        x = dr.gather(ArrayXu, self.nodes, index, shape=(4, dr.width(index)))
-        b0, b1 = self.grid.corners(x)
+    def _child(self, x: ArrayXu, k: int, o: Array3f, inv_d: Array3f, t_max: Float) -> tuple[Bool, Float, UInt32]:
+        """Child k (0 or 1) of a node's words x: whether the ray segment [0, t_max] enters its box, where,
+        and its link."""
+        b0, b1 = self.grid.corners([x[4 * k + i] for i in range(3)])
         t0, t1 = (b0 - o) * inv_d, (b1 - o) * inv_d
         t_near = dr.max(dr.minimum(t0, t1))
         t_far = dr.min(dr.maximum(t0, t1))
-        box = (t_near <= t_far) & (t_far >= 0) & (t_near <= t_max)
-        leaf = x[3] >= LEAF_BIT
-        return box, dr.select(leaf, node + 1, x[3]), dr.select(leaf, x[3] & (LEAF_BIT - 1), 0)
+        return (t_near <= t_far) & (t_far >= 0) & (t_near <= t_max), t_near, x[4 * k + 3]
+
+    def _walk(self, o: Array3f, d: Array3f, active: Bool, t_max, visit_leaf, finished, payload: tuple) -> tuple:
+        """Depth-first traversal, nearer child first, of the boxes that o + t d, 0 <= t <= t_max(payload),
+        enters: payload = visit_leaf(leaf word, *payload) at each such leaf; a lane stops at the end or
+        once finished(*payload)."""
+        inv_d, none, n = dr.rcp(d), UInt32(0xFFFFFFFF), len(payload)
+
+        def cond(node, sp, *rest):
+            return (node != none) & ~finished(*rest[:n])
+
+        def body(node, sp, *rest):
+            payload, stack = rest[:n], list(rest[n:])
+            x = dr.gather(ArrayXu, self.nodes, node, shape=(8, dr.width(node)))
+            children = [self._child(x, k, o, inv_d, t_max(*payload)) for k in (0, 1)]
+            for hit, _, link in children:
+                payload = dr.if_stmt((link & (LEAF_BIT - 1), *payload), hit & (link >= LEAF_BIT),
+                                     visit_leaf, lambda word, *p: p)
+            (hit_a, t_a, link_a), (hit_b, t_b, link_b) = children
+            inner_a, inner_b = hit_a & (link_a < LEAF_BIT), hit_b & (link_b < LEAF_BIT)
+            a_first = t_a <= t_b
+            near = dr.select(inner_a & (~inner_b | a_first), link_a, link_b)
+            both = inner_a & inner_b
+            stack = [dr.select(both & (sp == k), dr.select(a_first, link_b, link_a), s) for k, s in enumerate(stack)]
+            sp = dr.select(both, sp + 1, sp)
+            popped = none
+            for k, s in enumerate(stack):
+                popped = dr.select(sp == k + 1, s, popped)
+            descend = inner_a | inner_b
+            node = dr.select(descend, near, popped)
+            sp = dr.select(descend | (sp == 0), sp, sp - 1)
+            return (node, sp, *payload, *stack)
+
+        start = dr.select(active, UInt32(0), none)
+        state = (start, UInt32(0), *payload, *(UInt32(none) for _ in range(self.stack_size)))
+        return dr.while_loop(state, cond, body)[2:2 + n]
 
     def _leaf(self, word, o, d, t_min, t_best, skip, target):
         """The nearest hit among a leaf's triangles: (t, prim, b1, b2), t = inf if none."""
@@ -220,39 +236,27 @@ class BVHKernel:
             u_hit, v_hit = dr.select(closer, b1, u_hit), dr.select(closer, b2, v_hit)
         return t_hit, hit_prim, u_hit, v_hit
 
-    @dr.syntax
     def closest_hit(self, o: Array3f, d: Array3f, t_min, t_best: Float, prim: UInt32, b1: Float, b2: Float,
                     skip: UInt32):
         """Improves (t_best, prim, b1, b2) with the BVH's triangles."""
-        inv_d, table = dr.rcp(d), self._table(d)
-        node = UInt32(0)
-        while node < self.n_nodes:
-            box, miss, word = self._node(table, node, o, inv_d, t_best)
-            leaf = word != 0
-            if box & leaf:   # a symbolic branch: skipped when no lane of a packet is at a leaf
-                t, leaf_prim, u, v = self._leaf(word, o, d, t_min, t_best, skip, None)
-                closer = t < t_best
-                t_best = dr.select(closer, t, t_best)
-                prim = dr.select(closer, leaf_prim, prim)
-                b1, b2 = dr.select(closer, u, b1), dr.select(closer, v, b2)
-            node = dr.select(box & ~leaf, node + 1, miss)
-        return t_best, prim, b1, b2
+        def visit_leaf(word, t_best, prim, b1, b2):
+            t, leaf_prim, u, v = self._leaf(word, o, d, t_min, t_best, skip, None)
+            closer = t < t_best
+            return (dr.select(closer, t, t_best), dr.select(closer, leaf_prim, prim),
+                    dr.select(closer, u, b1), dr.select(closer, v, b2))
 
-    @dr.syntax
+        return self._walk(o, d, Bool(True), lambda t_best, *_: t_best, visit_leaf, lambda *_: Bool(False),
+                          (Float(t_best), UInt32(prim), Float(b1), Float(b2)))
+
     def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32,
                  active: Bool = True) -> Bool:
         """Whether a BVH triangle other than skip and target lies on o + t d, 0 < t < dist; False where
         not active (such lanes skip the traversal)."""
-        inv_d, table = dr.rcp(d), self._table(d)
-        node, blocked = dr.select(active, UInt32(0), self.n_nodes), Bool(False)
-        while (node < self.n_nodes) & ~blocked:
-            box, miss, word = self._node(table, node, o, inv_d, dist)
-            leaf = word != 0
-            if box & leaf:
-                t, _, _, _ = self._leaf(word, o, d, 0.0, dist, skip, target)
-                blocked = t < dist
-            node = dr.select(box & ~leaf, node + 1, miss)
-        return blocked
+        def visit_leaf(word, blocked):
+            return (blocked | (self._leaf(word, o, d, 0.0, dist, skip, target)[0] < dist),)
+
+        return self._walk(o, d, Bool(active), lambda _: dist, visit_leaf, lambda blocked: blocked,
+                          (Bool(False),))[0]
 
 
 def _aligned(a: np.ndarray, alignment: int = 64) -> np.ndarray:
