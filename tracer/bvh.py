@@ -4,9 +4,9 @@ The tree splits at the median centroid along the longest axis (built one level a
 leaves hold up to LEAF_SIZE triangles. The kernel stores each inner node as the boxes of its two children,
 so that one step tests both, and walks the tree depth first, nearer child first, with a per-lane stack of
 the far children still to visit: the shrinking closest hit then culls the far boxes. The stack lives in
-registers, one loop variable per tree level (selects on the stack pointer push and pop), since Dr.Jit
-1.5's local memory (dr.alloc_local) lost pushed entries on the LLVM backend. A child leaf's triangles are
-tested in a branch that a packet of lanes skips when none of them reaches a leaf.
+registers, one loop variable per tree level (a push shifts them down, a pop up), since Dr.Jit 1.5's local
+memory (dr.alloc_local) lost pushed entries on the LLVM backend. The leaves among a node's children are
+tested in one branch, which a packet of lanes skips when none of them reaches a leaf.
 
 An inner node is eight 32-bit words (32 bytes), gathered in one packet load: per child, its box's corners
 as 16-bit coordinates on a grid over the root box, rounded outwards (the kernel decodes them with one fma
@@ -189,34 +189,30 @@ class BVHKernel:
         once finished(*payload)."""
         inv_d, none, n = dr.rcp(d), UInt32(0xFFFFFFFF), len(payload)
 
-        def cond(node, sp, *rest):
+        def cond(node, *rest):
             return (node != none) & ~finished(*rest[:n])
 
-        def body(node, sp, *rest):
-            payload, stack = rest[:n], list(rest[n:])
+        def body(node, *rest):
+            payload, stack = rest[:n], rest[n:]
             x = dr.gather(ArrayXu, self.nodes, node, shape=(8, dr.width(node)))
-            children = [self._child(x, k, o, inv_d, t_max(*payload)) for k in (0, 1)]
-            for hit, _, link in children:
-                payload = dr.if_stmt((link & (LEAF_BIT - 1), *payload), hit & (link >= LEAF_BIT),
-                                     visit_leaf, lambda word, *p: p)
-            (hit_a, t_a, link_a), (hit_b, t_b, link_b) = children
+            (hit_a, t_a, link_a), (hit_b, t_b, link_b) = (self._child(x, k, o, inv_d, t_max(*payload)) for k in (0, 1))
+            leaf_a, leaf_b = hit_a & (link_a >= LEAF_BIT), hit_b & (link_b >= LEAF_BIT)
+            words = dr.select(leaf_a, link_a & (LEAF_BIT - 1), 0), dr.select(leaf_b, link_b & (LEAF_BIT - 1), 0)
+            payload = dr.if_stmt((*words, *payload), leaf_a | leaf_b,   # word 0: an empty leaf
+                                 lambda a, b, *p: visit_leaf(b, *visit_leaf(a, *p)), lambda a, b, *p: p)
             inner_a, inner_b = hit_a & (link_a < LEAF_BIT), hit_b & (link_b < LEAF_BIT)
             a_first = t_a <= t_b
             near = dr.select(inner_a & (~inner_b | a_first), link_a, link_b)
-            both = inner_a & inner_b
-            stack = [dr.select(both & (sp == k), dr.select(a_first, link_b, link_a), s) for k, s in enumerate(stack)]
-            sp = dr.select(both, sp + 1, sp)
-            popped = none
-            for k, s in enumerate(stack):
-                popped = dr.select(sp == k + 1, s, popped)
-            descend = inner_a | inner_b
-            node = dr.select(descend, near, popped)
-            sp = dr.select(descend | (sp == 0), sp, sp - 1)
-            return (node, sp, *payload, *stack)
+            push, pop = inner_a & inner_b, ~(inner_a | inner_b)
+            pushed = (dr.select(a_first, link_b, link_a), *stack[:-1])   # the far child on top
+            popped = (*stack[1:], none)
+            node = dr.select(pop, stack[0], near)
+            stack = tuple(dr.select(push, p, dr.select(pop, q, s)) for p, q, s in zip(pushed, popped, stack))
+            return (node, *payload, *stack)
 
         start = dr.select(active, UInt32(0), none)
-        state = (start, UInt32(0), *payload, *(UInt32(none) for _ in range(self.stack_size)))
-        return dr.while_loop(state, cond, body)[2:2 + n]
+        state = (start, *payload, *(UInt32(none) for _ in range(self.stack_size)))
+        return dr.while_loop(state, cond, body)[1:1 + n]
 
     def _leaf(self, word, o, d, t_min, t_best, skip, target):
         """The nearest hit among a leaf's triangles: (t, prim, b1, b2), t = inf if none."""
