@@ -138,11 +138,27 @@ class BoxGrid:
             q_hi += high
         return q_lo, q_hi
 
+    @staticmethod
+    def coords(x: list[UInt32]) -> tuple[Array3f, Array3f]:
+        """A box's (min, max) grid corners from its three words."""
+        return (Array3f(Float(x[0] & GRID), Float(x[0] >> 16), Float(x[1] & GRID)),
+                Array3f(Float(x[1] >> 16), Float(x[2] & GRID), Float(x[2] >> 16)))
+
     def corners(self, x: list[UInt32]) -> tuple[Array3f, Array3f]:
         """A box's decoded (min, max) corners from its three words."""
-        coords = (x[0] & GRID, x[0] >> 16, x[1] & GRID), (x[1] >> 16, x[2] & GRID, x[2] >> 16)
-        return tuple(Array3f(*(dr.fma(Float(q), float(s), float(o)) for q, s, o in zip(c, self.step, self.origin)))
-                     for c in coords)
+        origin, step = self._constants()
+        return tuple(dr.fma(q, step, origin) for q in self.coords(x))
+
+    def ray_terms(self, o: Array3f, d: Array3f) -> tuple[Array3f, Array3f]:
+        """(slope, offset) with q * slope + offset, per axis, the ray parameter t at which o + t d crosses
+        grid plane q: the slab test then takes one fma per plane. Direction components below 1e-20 in
+        magnitude count as +-1e-20, so that the terms stay finite (no 0 * inf = NaN)."""
+        origin, step = self._constants()
+        inv_d = dr.rcp(dr.select(dr.abs(d) < 1e-20, dr.select(d < 0, -1e-20, 1e-20), d))
+        return step * inv_d, (origin - o) * inv_d
+
+    def _constants(self) -> tuple[Array3f, Array3f]:
+        return Array3f(*(float(v) for v in self.origin)), Array3f(*(float(v) for v in self.step))
 
 
 class BVHKernel:
@@ -174,11 +190,12 @@ class BVHKernel:
         tris[:, 3] = (tree.order + prim_base).astype(_UINT).view(_FLOAT)
         self.tris = Float(_aligned(tris.ravel()))
 
-    def _child(self, x: ArrayXu, k: int, o: Array3f, inv_d: Array3f, t_max: Float) -> tuple[Bool, Float, UInt32]:
+    def _child(self, x: ArrayXu, k: int, slope: Array3f, offset: Array3f,
+               t_max: Float) -> tuple[Bool, Float, UInt32]:
         """Child k (0 or 1) of a node's words x: whether the ray segment [0, t_max] enters its box, where,
-        and its link."""
-        b0, b1 = self.grid.corners([x[4 * k + i] for i in range(3)])
-        t0, t1 = (b0 - o) * inv_d, (b1 - o) * inv_d
+        and its link; (slope, offset): the ray's BoxGrid.ray_terms."""
+        q0, q1 = self.grid.coords([x[4 * k + i] for i in range(3)])
+        t0, t1 = dr.fma(q0, slope, offset), dr.fma(q1, slope, offset)
         t_near = dr.max(dr.minimum(t0, t1))
         t_far = dr.min(dr.maximum(t0, t1))
         return (t_near <= t_far) & (t_far >= 0) & (t_near <= t_max), t_near, x[4 * k + 3]
@@ -187,7 +204,7 @@ class BVHKernel:
         """Depth-first traversal, nearer child first, of the boxes that o + t d, 0 <= t <= t_max(payload),
         enters: payload = visit_leaf(leaf word, *payload) at each such leaf; a lane stops at the end or
         once finished(*payload)."""
-        inv_d, none, n = dr.rcp(d), UInt32(0xFFFFFFFF), len(payload)
+        (slope, offset), none, n = self.grid.ray_terms(o, d), UInt32(0xFFFFFFFF), len(payload)
 
         def cond(node, *rest):
             return (node != none) & ~finished(*rest[:n])
@@ -195,11 +212,12 @@ class BVHKernel:
         def body(node, *rest):
             payload, stack = rest[:n], rest[n:]
             x = dr.gather(ArrayXu, self.nodes, node, shape=(8, dr.width(node)))
-            (hit_a, t_a, link_a), (hit_b, t_b, link_b) = (self._child(x, k, o, inv_d, t_max(*payload)) for k in (0, 1))
+            t_end = t_max(*payload)
+            (hit_a, t_a, link_a), (hit_b, t_b, link_b) = (self._child(x, k, slope, offset, t_end) for k in (0, 1))
             leaf_a, leaf_b = hit_a & (link_a >= LEAF_BIT), hit_b & (link_b >= LEAF_BIT)
             words = dr.select(leaf_a, link_a & (LEAF_BIT - 1), 0), dr.select(leaf_b, link_b & (LEAF_BIT - 1), 0)
             payload = dr.if_stmt((*words, *payload), leaf_a | leaf_b,   # word 0: an empty leaf
-                                 lambda a, b, *p: visit_leaf(b, *visit_leaf(a, *p)), lambda a, b, *p: p)
+                                 lambda w0, w1, *p: visit_leaf(w1, *visit_leaf(w0, *p)), lambda w0, w1, *p: p)
             inner_a, inner_b = hit_a & (link_a < LEAF_BIT), hit_b & (link_b < LEAF_BIT)
             a_first = t_a <= t_b
             near = dr.select(inner_a & (~inner_b | a_first), link_a, link_b)
