@@ -9,9 +9,9 @@ memory (dr.alloc_local) lost pushed entries on the LLVM backend. The leaves amon
 tested in one branch, which a packet of lanes skips when none of them reaches a leaf.
 
 An inner node is eight 32-bit words (32 bytes), gathered in one packet load: per child, its box's corners
-as 16-bit coordinates on a grid over the root box, rounded outwards (the kernel decodes them with one fma
-each), and a link: the child's node index, or for a leaf its first triangle * 8 + count with the top bit
-set. A triangle is twelve values: v0, its primitive id, e1, 0, e2, 0 (the id stored as the bits of a
+as 16-bit coordinates on a grid over the root box, rounded outwards by a further grid step (a margin far
+above the slab test's rounding; the test turns each coordinate into a ray parameter with one fma), and a
+link: the child's node index, or for a leaf its first triangle * 8 + count with the top bit set. A triangle is twelve values: v0, its primitive id, e1, 0, e2, 0 (the id stored as the bits of a
 float). Both tables start on a cache line: from memory it finds unaligned, Dr.Jit gathers value by value
 instead of in packets.
 """
@@ -113,7 +113,7 @@ def depth_first(tree: Tree) -> np.ndarray:
 
 class BoxGrid:
     """A 16-bit grid over the root box [lo, hi]: corner q of a node lies at origin + q * step, both
-    float32 (so that the decoding fma, in either precision, works on exact products)."""
+    float32 (so that q * step is exact in either precision and `decode` reproduces the kernel's fma)."""
 
     def __init__(self, lo: np.ndarray, hi: np.ndarray):
         lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
