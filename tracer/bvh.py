@@ -11,9 +11,10 @@ tested in one branch, which a packet of lanes skips when none of them reaches a 
 An inner node is eight 32-bit words (32 bytes), gathered in one packet load: per child, its box's corners
 as 16-bit coordinates on a grid over the root box, rounded outwards by a further grid step (a margin far
 above the slab test's rounding; the test turns each coordinate into a ray parameter with one fma), and a
-link: the child's node index, or for a leaf its first triangle * 8 + count with the top bit set. A triangle is twelve values: v0, its primitive id, e1, 0, e2, 0 (the id stored as the bits of a
-float). Both tables start on a cache line: from memory it finds unaligned, Dr.Jit gathers value by value
-instead of in packets.
+link: the child's node index, or for a leaf its first triangle * 8 + count with the top bit set. A
+triangle is twelve values: v0, its primitive id, e1, 0, e2, 0 (the id stored as the bits of a float).
+Both tables start on a cache line: from memory it finds unaligned, Dr.Jit gathers value by value instead
+of in packets.
 """
 from __future__ import annotations
 
