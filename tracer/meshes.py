@@ -28,10 +28,23 @@ def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
 
 @lru_cache(maxsize=16)
 def _read_obj(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    text = path.read_text()
+    vertices, faces, vn = _parse_plain(text) or _parse_statements(text, path)
+    if not len(faces):
+        raise MeshError(f"{path}: the mesh has no faces")
+    if not np.all(np.isfinite(vertices)):
+        raise MeshError(f"{path}: a vertex position is NaN or infinite")
+    for a in (vertices, faces, vn):
+        if a is not None:
+            a.flags.writeable = False
+    return vertices, faces, vn
+
+
+def _parse_statements(text: str, path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Any OBJ, statement by statement."""
     positions, normals = [], []
     keys: dict[tuple[int, int], int] = {}
     faces = []
-    text = path.read_text()
     for lineno, line in enumerate(text.splitlines(), 1):
         parts = line.split()
         if not parts or parts[0].startswith("#"):
@@ -47,22 +60,42 @@ def _read_obj(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndar
                 faces += [(ids[0], ids[i], ids[i + 1]) for i in range(1, len(ids) - 1)]
         except (ValueError, IndexError):
             raise MeshError(f"{path}:{lineno}: malformed OBJ line '{line.strip()}'") from None
-    if not faces:
-        raise MeshError(f"{path}: the mesh has no faces")
-    pos = np.asarray(positions, float)
     order = sorted(keys, key=keys.get)
-    vertices = pos[[k[0] for k in order]]
-    if not np.all(np.isfinite(vertices)):
-        raise MeshError(f"{path}: a vertex position is NaN or infinite")
+    vertices = np.asarray(positions, float)[[k[0] for k in order]] if order else np.zeros((0, 3))
     vn = None
     if normals and all(k[1] >= 0 for k in order):
         vn = np.asarray(normals, float)[[k[1] for k in order]]
         vn /= np.linalg.norm(vn, axis=1, keepdims=True)
-    out = vertices, np.asarray(faces, np.int64), vn
-    for a in out:
-        if a is not None:
-            a.flags.writeable = False
-    return out
+    return vertices, np.asarray(faces, np.int64).reshape(-1, 3), vn
+
+
+def _parse_plain(text: str) -> tuple[np.ndarray, np.ndarray, None] | None:
+    """The common OBJ, parsed in bulk: only "v x y z" and "f i j k" statements (positive indices of earlier
+    vertices) besides comments and statements the reader ignores. None for anything else, which
+    _parse_statements then reads (and reports on) line by line; both give the same mesh."""
+    v_rows, f_rows, known = [], [], []
+    for line in text.splitlines():
+        head = line[:2]
+        if head == "v ":
+            v_rows.append(line[2:].split())
+        elif head == "f ":
+            f_rows.append(line[2:].split())
+            known.append(len(v_rows))          # the vertices a face may name
+        elif line.split()[:1] in (["v"], ["vn"], ["f"]):
+            return None
+    if not f_rows or any(len(r) != 3 for r in v_rows) or any(len(r) != 3 for r in f_rows):
+        return None
+    try:
+        positions, corners = np.array(v_rows, float), np.array(f_rows, np.int64)
+    except ValueError:                            # "1/2/3" corners, malformed numbers
+        return None
+    if (corners < 1).any() or (corners > np.array(known)[:, None]).any():
+        return None
+    used, first = np.unique(corners.ravel() - 1, return_index=True)
+    order = used[np.argsort(first)]               # vertices in order of first use, as Mitsuba keys them
+    index = np.empty(len(positions), np.int64)
+    index[order] = np.arange(len(order))
+    return positions[order], index[corners - 1], None
 
 
 def _corner(token: str, n_pos: int, n_norm: int) -> tuple[int, int]:
