@@ -126,14 +126,15 @@ def test_bvh_closest_hits_and_shadow_rays_on_a_large_mesh():
 
 @pytest.mark.parametrize("offset, extent", [(0.0, 1.0), (1e4, 1.0), (-3.0, 1e-5), (0.0, 0.0)])
 def test_decoded_node_boxes_contain_their_triangles(offset, extent):
-    """The kernel's decoded 16-bit corners bound every node's box, at most a few grid steps (or float
+    """The table's 16-bit corners, decoded, bound every node's box, at most a few grid steps (or float
     spacings) wider; also for a mesh far from the origin, a thin one, and a flat one (extent 0 along z)."""
     rng = np.random.default_rng(7)
     tris = offset + rng.uniform(0, 1, (3000, 3, 3)) * [1.0, 1.0, extent]
     kernel, tree = BVHKernel(tris, prim_base=0), build(tris)
     words = dr.gather(ArrayXu, kernel.nodes, dr.arange(UInt32, len(kernel.rows)), shape=(8, len(kernel.rows)))
     for k, child in enumerate((tree.left[kernel.rows], tree.right[kernel.rows])):
-        lo, hi = (c.numpy().T for c in kernel.grid.corners([words[4 * k + i] for i in range(3)]))
+        q = kernel.grid.coords([words[4 * k + i] for i in range(3)])   # unpacked as the kernel does
+        lo, hi = (kernel.grid.decode(c.numpy().T.astype(np.int64)) for c in q)
         assert (lo <= tree.lo[child]).all() and (hi >= tree.hi[child]).all()
         slack = 3 * kernel.grid.step.astype(np.float64) + 2 * np.spacing(np.abs(tree.lo[child]).astype(lo.dtype))
         assert (tree.lo[child] - lo <= slack).all() and (hi - tree.hi[child] <= slack).all()

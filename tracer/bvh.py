@@ -114,7 +114,7 @@ def depth_first(tree: Tree) -> np.ndarray:
 
 class BoxGrid:
     """A 16-bit grid over the root box [lo, hi]: corner q of a node lies at origin + q * step, both
-    float32 (so that q * step is exact in either precision and `decode` reproduces the kernel's fma)."""
+    float32, so that q * step is exact in either precision and `decode` rounds once."""
 
     def __init__(self, lo: np.ndarray, hi: np.ndarray):
         lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
@@ -145,21 +145,13 @@ class BoxGrid:
         return (Array3f(Float(x[0] & GRID), Float(x[0] >> 16), Float(x[1] & GRID)),
                 Array3f(Float(x[1] >> 16), Float(x[2] & GRID), Float(x[2] >> 16)))
 
-    def corners(self, x: list[UInt32]) -> tuple[Array3f, Array3f]:
-        """A box's decoded (min, max) corners from its three words."""
-        origin, step = self._constants()
-        return tuple(dr.fma(q, step, origin) for q in self.coords(x))
-
     def ray_terms(self, o: Array3f, d: Array3f) -> tuple[Array3f, Array3f]:
         """(slope, offset) with q * slope + offset, per axis, the ray parameter t at which o + t d crosses
         grid plane q: the slab test then takes one fma per plane. Direction components below 1e-20 in
         magnitude count as +-1e-20, so that the terms stay finite (no 0 * inf = NaN)."""
-        origin, step = self._constants()
+        origin, step = Array3f(*(float(v) for v in self.origin)), Array3f(*(float(v) for v in self.step))
         inv_d = dr.rcp(dr.select(dr.abs(d) < 1e-20, dr.select(d < 0, -1e-20, 1e-20), d))
         return step * inv_d, (origin - o) * inv_d
-
-    def _constants(self) -> tuple[Array3f, Array3f]:
-        return Array3f(*(float(v) for v in self.origin)), Array3f(*(float(v) for v in self.step))
 
 
 class BVHKernel:

@@ -382,7 +382,7 @@ def markdown(r: dict) -> str:
     by_n: dict[int, dict] = {}
     for kind, n, t in scaling["triangles"]:
         by_n.setdefault(n, {})[kind] = t
-    setup = {(kind, n): t for kind, n, t in scaling.get("setup", [])}
+    setup = {(kind, n): t for kind, n, t in scaling["setup"]}
     for n in sorted(by_n):
         cells = [by_n[n].get(kind) for kind in ("bvh", "brute force", "Mitsuba")]
         cells += [setup.get(("bvh", n)), setup.get(("Mitsuba", n))]
