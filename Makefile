@@ -3,7 +3,7 @@ VENV   ?= .venv
 PYTHON := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test setup clean
+.PHONY: demo test test-fast setup clean
 
 setup: $(STAMP)
 
@@ -19,6 +19,9 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PYTHON) -m pytest -q
+
+test-fast: $(STAMP)   # the edit loop: everything but the statistical comparisons against Mitsuba (-m slow)
+	$(PYTHON) -m pytest -q -m "not slow"
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

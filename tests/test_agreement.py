@@ -1,64 +1,77 @@
-"""Both estimators against Mitsuba's `path` integrator on the same XML: Welch's t-test per 4x4 block and
-channel, Bonferroni-corrected (validation.stats), with family-wise false-positive rate ALPHA per
-comparison — and the same test shown to fail on a wrong image and on the report code's estimator bug.
+"""Both estimators against Mitsuba's `path` integrator on the same XML, through `validate check`'s function
+(validation.check): equal-budget Welch tests per 4x4 block and channel and on the image means,
+Bonferroni-corrected, family-wise false-positive rate ALPHA per comparison (measured: reports/calibration.md)
+— and the same check shown to disagree on a wrong image and on the report code's estimator bug.
+
+A failing comparison writes ours, the reference, their difference and the rejected blocks under
+out/test-agreement/ (the check's --output images).
 """
-import numpy as np
+from pathlib import Path
+
 import pytest
 
-import tracer
 from tracer.integrators import report as report_estimator
-from tracer.render import render
-from validation.stats import welch_test
+from validation.check import Settings, check
+from validation.protocol import ALPHA
+from validation.renderers import ExternalRenderer, TracerRenderer
 
-from .conftest import SCENES, mitsuba_passes
+from .conftest import ROOT, SCENES
 
-ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 11 comparisons: < 1.1% in all
-PASSES = 16
-SIZE = 32
-SPP = 64         # per pass, path estimator and Mitsuba
-REPORT = dict(spp=2, direct=4, indirect=4)   # per pass; any N, M is unbiased
-
-
-def tracer_passes(scene_name, estimator, max_depth, **kw):
-    scene = tracer.load_scene(SCENES / scene_name, width=SIZE, height=SIZE)
-    opts = dict(REPORT) if estimator == "report" else dict(spp=SPP)
-    opts.update(kw)
-    return np.stack([render(scene, estimator, seed=1000 + k, max_depth=max_depth, **opts).image
-                     for k in range(PASSES)])
+pytestmark = pytest.mark.slow
+OUT = ROOT / "out" / "test-agreement"
+REPORT = TracerRenderer("report", direct=4, indirect=4)
+SETTINGS = Settings(alpha=ALPHA)     # 16 passes of 64 spp (report: 2 camera rays), 32 x 32
 
 
-def reference(scene_name, max_depth):
-    return mitsuba_passes(scene_name, PASSES, SPP, width=SIZE, height=SIZE, max_depth=max_depth)
+def verdict(scene_file: Path, renderer, max_depth: int, settings: Settings = SETTINGS):
+    return check(scene_file, renderer, max_depth, settings=settings, output=OUT)
 
 
 @pytest.mark.parametrize("estimator", ["path", "report"])
 @pytest.mark.parametrize("max_depth", [2, 3, 4, 5])
 def test_hexagon_room_agrees_with_mitsuba(estimator, max_depth):
-    ours = tracer_passes("hexagon_room.xml", estimator, max_depth)
-    result = welch_test(ours, reference("hexagon_room.xml", max_depth), alpha=ALPHA)
-    assert result.passed, result.summary()
+    renderer = REPORT if estimator == "report" else TracerRenderer("path")
+    result = verdict(SCENES / "hexagon_room.xml", renderer, max_depth)
+    assert result.verdict == "agree", result.line()
 
 
 @pytest.mark.parametrize("max_depth", [6, -1])
 def test_cornell_box_path_agrees_with_mitsuba(max_depth):
-    ours = tracer_passes("cornell_box.xml", "path", max_depth)
-    result = welch_test(ours, reference("cornell_box.xml", max_depth), alpha=ALPHA)
-    assert result.passed, result.summary()
+    result = verdict(SCENES / "cornell_box.xml", TracerRenderer("path"), max_depth)
+    assert result.verdict == "agree", result.line()
 
 
 def test_uniform_hemisphere_sampling_agrees_with_mitsuba():
-    ours = tracer_passes("hexagon_room.xml", "report", 3, hemisphere="uniform")
-    result = welch_test(ours, reference("hexagon_room.xml", 3), alpha=ALPHA)
-    assert result.passed, result.summary()
+    renderer = TracerRenderer("report", direct=4, indirect=4, hemisphere="uniform")
+    result = verdict(SCENES / "hexagon_room.xml", renderer, 3)
+    assert result.verdict == "agree", result.line()
 
 
-def test_fails_on_a_deliberately_wrong_image():
-    ours = tracer_passes("hexagon_room.xml", "path", 3) * 1.05
-    result = welch_test(ours, reference("hexagon_room.xml", 3), alpha=ALPHA)
-    assert not result.passed, result.summary()
+@pytest.mark.parametrize("estimator", ["path", "report"])
+def test_mesh_light_smooth_normals_twosided_agree_with_mitsuba(estimator):
+    """Two lights (one a mesh), a smooth-normal mesh, a two-sided floor, mirror and glass spheres."""
+    renderer = REPORT if estimator == "report" else TracerRenderer("path")
+    result = verdict(ROOT / "tests" / "data" / "two_lights.xml", renderer, 4)
+    assert result.verdict == "agree", result.line()
 
 
-def test_fails_on_the_report_codes_double_cosine(monkeypatch):
+def test_disagrees_on_a_deliberately_wrong_image(monkeypatch):
+    """The tracer's path estimator with its image 5% too bright."""
+    import tracer.render
+
+    correct = tracer.render.render
+
+    def too_bright(*args, **kwargs):
+        result = correct(*args, **kwargs)
+        result.image *= 1.05
+        return result
+
+    monkeypatch.setattr(tracer.render, "render", too_bright)
+    result = verdict(SCENES / "hexagon_room.xml", TracerRenderer("path"), 3)
+    assert result.verdict == "disagree", result.line()
+
+
+def test_disagrees_on_the_report_codes_double_cosine(monkeypatch):
     """The report's code weights cosine-sampled directions by the cosine a second time."""
     correct = report_estimator.hemisphere_sample
 
@@ -67,19 +80,16 @@ def test_fails_on_the_report_codes_double_cosine(monkeypatch):
         return local, weight * local.z
 
     monkeypatch.setattr(report_estimator, "hemisphere_sample", double_cosine)
-    ours = tracer_passes("hexagon_room.xml", "report", 3)
-    result = welch_test(ours, reference("hexagon_room.xml", 3), alpha=ALPHA)
-    assert not result.passed, result.summary()
+    result = verdict(SCENES / "hexagon_room.xml", REPORT, 3)
+    assert result.verdict == "disagree", result.line()
 
 
-@pytest.mark.parametrize("estimator", ["path", "report"])
-def test_mesh_light_smooth_normals_twosided_agree_with_mitsuba(estimator):
-    """Two lights (one a mesh), a smooth-normal mesh, a two-sided floor, mirror and glass spheres."""
-    scene_file = SCENES.parent / "tests" / "data" / "two_lights.xml"
-    scene = tracer.load_scene(scene_file)
-    opts = dict(REPORT) if estimator == "report" else dict(spp=SPP)
-    ours = np.stack([render(scene, estimator, seed=2000 + k, max_depth=4, **opts).image for k in range(PASSES)])
-    from validation.mitsuba_render import render_passes
-    ref = render_passes(scene_file, PASSES, SPP, seed=7, max_depth=4)
-    result = welch_test(ours, ref, alpha=ALPHA)
-    assert result.passed, result.summary()
+@pytest.mark.parametrize("scale, expected", [(1.0, "agree"), (0.98, "disagree")])
+def test_external_renderer_example(scale, expected):
+    """examples/mitsuba_renderer.py as an external renderer: honest, and 2% too dark."""
+    import sys
+
+    command = (f"{sys.executable} {ROOT / 'examples' / 'mitsuba_renderer.py'} {{scene}} -o {{output}} "
+               f"--spp {{spp}} --seed {{seed}} {{defines}} --scale {scale}")
+    result = verdict(SCENES / "hexagon_room.xml", ExternalRenderer(command), 4, Settings(passes=8, spp=64))
+    assert result.verdict == expected, result.line()

@@ -1,54 +1,47 @@
-"""The harness's power: each known fault injected into the tracer (validation.faults) makes Welch's test
-against Mitsuba fail, while the correct tracer passes at the same settings.
+"""The check's power: each known fault injected into the tracer (validation.faults) makes `validate check`'s
+function disagree with Mitsuba, while the correct tracer agrees at the same settings.
 
-Every comparison is Welch's test per 4x4 block and channel, Bonferroni-corrected, with family-wise
-false-positive rate ALPHA = 1e-3: the five "correct tracer passes" tests together fail by chance with
-probability below 0.5%. The "fault is caught" tests can fail only by lack of power.
+Each comparison has family-wise false-positive rate ALPHA = 1e-3 (measured: reports/calibration.md): the five
+"correct tracer agrees" tests together fail by chance with probability below 0.5%. The "fault is caught"
+tests can fail only by lack of power.
 """
 import numpy as np
 import pytest
 
 import tracer
 from tracer.render import render
+from validation.check import Settings, check
 from validation.faults import FAULTS
-from validation.stats import welch_test
+from validation.power import REPORT
+from validation.renderers import TracerRenderer
 
-from .conftest import SCENES, mitsuba_passes
+from .conftest import SCENES
 
-ALPHA = 1e-3
-PASSES = 16      # independent images of each renderer
-SIZE = 32
-# samples per pass of the path estimator and Mitsuba: each fault's own `spp` (64; 256 for Schlick's small bias)
-REPORT = dict(spp=2, direct=4, indirect=4)   # per pass, report estimator
+REPORT_SPP = 2   # camera rays per pass of the branching estimator; the path estimator uses each fault's spp
 
 
-def tracer_passes(scene_name: str, estimator: str, max_depth: int, spp: int) -> np.ndarray:
-    scene = tracer.load_scene(SCENES / scene_name, width=SIZE, height=SIZE)
-    opts = dict(REPORT) if estimator == "report" else dict(spp=spp)
-    return np.stack([render(scene, estimator, seed=2000 + k, max_depth=max_depth, **opts).image
-                     for k in range(PASSES)])
-
-
-def compare(fault, faulty: bool):
-    ref = mitsuba_passes(fault.scene, PASSES, fault.spp, width=SIZE, height=SIZE, max_depth=fault.max_depth)
+def verdict(fault, faulty: bool):
+    renderer = TracerRenderer(fault.estimator, **(REPORT if fault.estimator == "report" else {}))
+    spp = REPORT_SPP if fault.estimator == "report" else fault.spp
+    settings = Settings(spp=spp, max_spp=spp)
     if faulty:
         with fault.inject():
-            ours = tracer_passes(fault.scene, fault.estimator, fault.max_depth, fault.spp)
-    else:
-        ours = tracer_passes(fault.scene, fault.estimator, fault.max_depth, fault.spp)
-    return welch_test(ours, ref, alpha=ALPHA)
+            return check(SCENES / fault.scene, renderer, fault.max_depth, settings=settings)
+    return check(SCENES / fault.scene, renderer, fault.max_depth, settings=settings)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(FAULTS))
 def test_fault_is_caught(name):
-    result = compare(FAULTS[name], faulty=True)
-    assert not result.passed, f"{name} not detected: {result.summary()}"
+    result = verdict(FAULTS[name], faulty=True)
+    assert result.verdict == "disagree", f"{name} not detected: {result.line()}"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(FAULTS))
-def test_correct_tracer_passes_at_the_same_settings(name):
-    result = compare(FAULTS[name], faulty=False)
-    assert result.passed, result.summary()
+def test_correct_tracer_agrees_at_the_same_settings(name):
+    result = verdict(FAULTS[name], faulty=False)
+    assert result.verdict == "agree", result.line()
 
 
 def test_injection_is_undone():

@@ -7,6 +7,7 @@ import pytest
 from validation import cli, references, sweep
 from validation.metrics import agreement, measure, rmse, ssim
 from validation.references import Reference
+from validation.scenefile import plan
 
 from .conftest import SCENES
 
@@ -48,12 +49,19 @@ def test_cache_key_follows_scene_meshes_and_parameters(tmp_path):
     scene = tmp_path / "hexagon_room.xml"
     shutil.copy(SCENES / "hexagon_room.xml", scene)
     shutil.copytree(SCENES / "meshes", tmp_path / "meshes")
-    key = references.cache_key(scene, 16, 64, {"max_depth": 4})
-    assert references.cache_key(scene, 16, 64, {"max_depth": 5}) != key
-    assert references.cache_key(scene, 16, 32, {"max_depth": 4}) != key
+    def key(max_depth=4, spp=64, **defines):
+        return plan(scene, defines, max_depth=max_depth).content_key(passes=16, spp=spp)
+
+    first = key()
+    assert key(max_depth=5) != first
+    assert key(spp=32) != first
+    assert key(width="32") != first
     mesh = tmp_path / "meshes" / "tetrahedron.obj"
     mesh.write_text(mesh.read_text() + "\n# changed\n")
-    assert references.cache_key(scene, 16, 64, {"max_depth": 4}) != key
+    assert key() != first
+    second = key()
+    scene.write_text(scene.read_text().replace("<scene", "<!-- an edited light --><scene", 1))
+    assert key() != second
 
 
 def test_cache_round_trip_and_damage_detection(tmp_path):

@@ -1,4 +1,8 @@
-"""`validate report SCENE.xml [--quick] [--size N]`: run (or resume) the sweeps and write the report;
+"""`validate check SCENE.xml [...]`: is a renderer right on these scenes? agree / disagree / inconclusive, with
+exit codes for CI (0 all agree, 1 any disagrees, 3 any inconclusive and none disagrees, 2 usage or input error);
+`validate calibrate`: the check's measured false-alarm rate and power (reports/calibration.md);
+`validate stability`: the numerical stability suite (reports/stability.md);
+`validate report SCENE.xml [--quick] [--size N]`: run (or resume) the sweeps and write the report;
 `validate reference SCENE.xml --max-depth D --size N`: render or load one cached Mitsuba reference;
 `validate faults`: the table of injected faults the statistical test catches;
 `validate improvements SCENE.xml`: filters, adaptive sampling and denoising, each measured."""
@@ -18,6 +22,13 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="validate", description="The tracer against Mitsuba 3 ground truth.",
                                 epilog=DEPTH_NOTE)
     sub = p.add_subparsers(dest="command", required=True)
+    _check_parser(sub)
+    c = sub.add_parser("calibrate", help="write reports/calibration.md: the check's false-alarm rate on null "
+                       "comparisons and its power on injected faults (cached renders; resumes)")
+    c.add_argument("--output", "-o", type=Path, default=Path("reports/calibration.md"))
+    c.add_argument("--repetitions", type=int, default=12, help="null comparisons per cell (default 12)")
+    st = sub.add_parser("stability", help="write reports/stability.md: the numerical stability suite")
+    st.add_argument("--output", "-o", type=Path, default=Path("reports/stability.md"))
     r = sub.add_parser("report", help="write reports/<scene>/README.md (resumes an interrupted sweep)")
     r.add_argument("scene", type=Path)
     r.add_argument("--quick", action="store_true", help="small images and short sweeps (a minute or two); "
@@ -43,6 +54,107 @@ def _parser() -> argparse.ArgumentParser:
                    help="run only this study (repeatable)")
     m.add_argument("--output", "-o", type=Path, help="report folder (default reports/<scene>)")
     return p
+
+
+EXIT_NOTE = ("exit status: 0 every check agrees, 1 any disagrees, 3 any is inconclusive (and none disagrees), "
+             "2 usage or input error")
+
+
+def _check_parser(sub) -> None:
+    from . import protocol
+
+    k = sub.add_parser("check", help="agree / disagree / inconclusive for a renderer against Mitsuba, with exit "
+                       "codes for CI", epilog=EXIT_NOTE + ". " + DEPTH_NOTE)
+    k.add_argument("scenes", type=Path, nargs="+", metavar="SCENE.xml")
+    who = k.add_mutually_exclusive_group()
+    who.add_argument("--estimator", action="append", choices=("path", "report"),
+                     help="the tracer's estimator under test (repeatable; default path)")
+    who.add_argument("--renderer", metavar="'CMD ...'", help="an external renderer: a command template with "
+                     "{scene}, {output} (the EXR it must write), {spp}, {seed} and {defines} (-D name=value for "
+                     "the film size, max_depth, spp and every -D given here)")
+    k.add_argument("--direct", "-N", type=int, default=16, help="report estimator: shadow rays per diffuse hit")
+    k.add_argument("--indirect", "-M", type=int, default=8, help="report estimator: hemisphere rays per diffuse hit")
+    depth = k.add_mutually_exclusive_group()
+    depth.add_argument("--max-depth", type=int, action="append", help="Mitsuba's max_depth (repeatable; "
+                       "default: the scene's)")
+    depth.add_argument("--report-depth", type=int, action="append", help="the report's depth D = max_depth D + 2")
+    k.add_argument("--spp", type=int, help=f"samples per pixel of one pass (default {protocol.SPP}; report "
+                   f"estimator {protocol.REPORT_SPP} camera rays)")
+    k.add_argument("--passes", type=int, default=protocol.PASSES, help=f"independent passes (default {protocol.PASSES})")
+    k.add_argument("--max-spp", type=int, default=protocol.MAX_SPP, help="an inconclusive check is repeated at 4x "
+                   f"the spp per pass up to this (default {protocol.MAX_SPP})")
+    k.add_argument("--seed", type=int, default=protocol.SEED_TEST)
+    k.add_argument("--size", type=int, default=protocol.SIZE, help="longer side of the image, the scene's aspect "
+                   f"kept (default {protocol.SIZE}; -D width=... height=... sets both)")
+    k.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
+                   help="override a <default> of the scene; width, height, max_depth work on any scene")
+    k.add_argument("--alpha", type=float, default=protocol.ALPHA, help="family-wise false-positive rate of one "
+                   f"check (default {protocol.ALPHA:g})")
+    k.add_argument("--json", type=Path, metavar="FILE", help="write the results as JSON")
+    k.add_argument("--junit", type=Path, metavar="FILE", help="write JUnit XML (one test case per check)")
+    k.add_argument("--output", "-o", type=Path, metavar="DIR", help="on disagree or inconclusive: ours, the "
+                   "reference, their difference and the rejected blocks as images")
+
+
+def _defines(items: list[str]) -> dict[str, str]:
+    from .scenefile import ScenePlanError
+
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            raise ScenePlanError(f"-D {item}: expected NAME=VALUE")
+        out[name] = value
+    return out
+
+
+def _check(args) -> int:
+    from .check import Settings, check, exit_code, write_json, write_junit
+    from .renderers import ExternalRenderer, TracerRenderer
+    from .scenefile import ScenePlanError
+
+    defines = _defines(args.defines)
+    settings = Settings(passes=args.passes, spp=args.spp, seed=args.seed, alpha=args.alpha, size=args.size,
+                        max_spp=args.max_spp)
+    if args.renderer:
+        renderers = [ExternalRenderer(args.renderer)]
+    else:
+        renderers = [TracerRenderer(e, args.direct, args.indirect) for e in dict.fromkeys(args.estimator or ["path"])]
+    for name in ("direct", "indirect"):
+        if getattr(args, name) < 1:
+            raise ScenePlanError(f"--{name} must be at least 1, got {getattr(args, name)}")
+    if args.report_depth and min(args.report_depth) < 0:
+        raise ScenePlanError(f"--report-depth must be at least 0 (max_depth 2, direct light), got {min(args.report_depth)}")
+    depths = [d + 2 for d in args.report_depth] if args.report_depth else (args.max_depth or [None])
+    for scene in args.scenes:
+        if not scene.is_file():
+            raise ScenePlanError(f"scene file '{scene}' not found")
+    results = []
+    for scene in args.scenes:
+        for renderer in renderers:
+            for depth in depths:
+                result = check(scene, renderer, depth, defines, settings, args.output)
+                print(result.line(), flush=True)
+                results.append(result)
+    if args.json:
+        write_json(results, args.json)
+    if args.junit:
+        write_junit(results, args.junit)
+    code = exit_code(results)
+    print(f"validate check: {len(results)} checks, " + ", ".join(
+        f"{sum(r.verdict == v for r in results)} {v}" for v in ("agree", "disagree", "inconclusive")) +
+        f" (exit {code})")
+    return code
+
+
+def _interrupted(e: BaseException | None) -> bool:
+    """Whether `e` or an exception it was raised from is a KeyboardInterrupt (Dr.Jit wraps those raised
+    inside its loops in a RuntimeError)."""
+    while e is not None:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        e = e.__cause__ or e.__context__
+    return False
 
 
 def _improvements(args) -> None:
@@ -82,6 +194,31 @@ def _reference(args) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if args.command == "check":
+        from .renderers import RendererError
+        from .scenefile import ScenePlanError
+        from tracer.scene import SceneError
+
+        try:
+            return _check(args)
+        except (ScenePlanError, SceneError, RendererError) as e:
+            if _interrupted(e):
+                print("validate: interrupted", file=sys.stderr)
+                return 130
+            print(f"validate: error: {e}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            print("validate: interrupted", file=sys.stderr)
+            return 130
+    if args.command == "calibrate":
+        from .calibration import report
+
+        print(report(args.output, args.repetitions))
+        return 0
+    if args.command == "stability":
+        from .stability import main as stability
+
+        return stability(["--report", str(args.output)])
     if args.command == "bench":
         from .benchmark import run
 

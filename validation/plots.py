@@ -56,10 +56,21 @@ def error_vs_depth(depths: list[str], share: list[float], curves: dict[str, list
     _save(fig, path)
 
 
+def difference_limit(diff: np.ndarray) -> float:
+    """The colour scale of a signed difference image: the 99th percentile of its magnitude."""
+    return float(np.percentile(np.abs(diff), 99)) or 1e-6
+
+
+def signed_colours(diff: np.ndarray) -> np.ndarray:
+    """(H, W) signed difference -> (H, W, 3) RGB in [0, 1] on the RdBu_r map of `side_by_side`."""
+    limit = difference_limit(diff)
+    return plt.get_cmap("RdBu_r")(np.clip(diff / limit, -1, 1) * 0.5 + 0.5)[..., :3]
+
+
 def side_by_side(image: np.ndarray, reference: np.ndarray, title: str, path: Path) -> None:
     """Tracer, reference, and their signed difference (mean over channels) as a diverging heat map."""
     diff = (image - reference).mean(axis=-1)
-    limit = float(np.percentile(np.abs(diff), 99)) or 1e-6
+    limit = difference_limit(diff)
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.6))
     axes[0].imshow(srgb_encode(image))
     axes[0].set_title(title, fontsize=9)

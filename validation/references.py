@@ -5,7 +5,8 @@ the metrics and the statistical test need: the per-pixel mean, the per-pixel var
 and the passes averaged over BLOCK x BLOCK tiles (validation.stats.block_means), so that Welch's test
 runs on a reference without storing every full-resolution pass.
 
-The cache key hashes the scene file, every mesh file it names, the parameters and the Mitsuba version.
+The cache key hashes the scene file, every file it names (meshes, includes, textures), the plan (size,
+depth, overrides), the samples and the Mitsuba version (validation.scenefile.ScenePlan.content_key).
 Files are written atomically (temporary file, then rename) and carry a SHA-256 of their arrays, checked
 on load: an interrupted or damaged cache entry is rendered again, never used.
 """
@@ -15,7 +16,6 @@ import hashlib
 import io
 import json
 import os
-import re
 import tempfile
 import time
 import zipfile
@@ -24,12 +24,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .mitsuba_render import render_passes, version
+from .mitsuba_render import version
+from .protocol import BLOCK, SEED_REFERENCE as SEED
+from .renderers import MitsubaRenderer
+from .scenefile import ScenePlan, plan
 from .stats import block_means
 
 CACHE = Path(".cache/references")
-BLOCK = 4          # tile edge of the stored block means; Welch's test then runs with block=1
-SEED = 777         # Mitsuba's seeds for references; tests and sweeps use other seeds
 
 
 @dataclass
@@ -40,24 +41,6 @@ class Reference:
     spp: int                # total samples per pixel (passes x spp per pass)
     seconds: float          # Mitsuba's wall time to render it
     key: str
-
-
-def scene_files(scene_file: Path) -> list[Path]:
-    """The scene file and every file its XML names with a `filename` string (meshes)."""
-    text = scene_file.read_text()
-    names = re.findall(r'name="filename"\s+value="([^"]+)"', text)
-    return [scene_file] + sorted(scene_file.parent / n for n in names)
-
-
-def cache_key(scene_file: Path, passes: int, spp: int, params: dict) -> str:
-    """SHA-256 over the scene's files, the render parameters and Mitsuba's version."""
-    h = hashlib.sha256()
-    for f in scene_files(scene_file):
-        h.update(f.name.encode())
-        h.update(f.read_bytes())
-    h.update(json.dumps({"passes": passes, "spp": spp, "seed": SEED, "block": BLOCK, "params": params,
-                         "mitsuba": version()}, sort_keys=True).encode())
-    return h.hexdigest()[:24]
 
 
 def _digest(arrays: dict[str, np.ndarray]) -> str:
@@ -101,15 +84,21 @@ def load(path: Path, key: str) -> Reference | None:
 def reference(scene_file: str | Path, max_depth: int, size: int, passes: int = 16, spp: int = 64,
               cache: Path = CACHE) -> Reference:
     """Mitsuba's `path` at `max_depth`, `size` x `size`, `passes` x `spp` samples per pixel; cached."""
-    scene_file = Path(scene_file)
-    params = {"max_depth": max_depth, "width": size, "height": size}
-    key = cache_key(scene_file, passes, spp, params)
-    path = cache / f"{scene_file.stem}-d{max_depth}-{size}px-{passes}x{spp}-{key}.npz"
+    scene_plan = plan(scene_file, {"width": str(size), "height": str(size)}, max_depth=max_depth)
+    return mitsuba_reference(scene_plan, passes, spp, cache)
+
+
+def mitsuba_reference(scene_plan: ScenePlan, passes: int, spp: int, cache: Path = CACHE) -> Reference:
+    """Mitsuba's `path` on the planned scene, `passes` x `spp` samples per pixel; cached under a key of the
+    scene's content (every file it names), the plan, the samples and Mitsuba's version."""
+    key = scene_plan.content_key(passes=passes, spp=spp, seed=SEED, block=BLOCK, mitsuba=version())
+    path = cache / (f"{scene_plan.path.stem}-d{scene_plan.max_depth}-{scene_plan.width}x{scene_plan.height}"
+                    f"-{passes}x{spp}-{key}.npz")
     ref = load(path, key)
     if ref is not None:
         return ref
     start = time.perf_counter()
-    p = render_passes(scene_file, passes, spp, seed=SEED, **params)
+    p = MitsubaRenderer().passes(scene_plan, passes, spp, SEED)
     seconds = time.perf_counter() - start
     ref = Reference(p.mean(0), p.var(0, ddof=1) / passes, block_means(p, BLOCK).astype(np.float32),
                     passes * spp, seconds, key)

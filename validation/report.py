@@ -133,7 +133,7 @@ def _images_section(scene_file: Path, spec: RunSpec, ref: Reference, out: Path) 
             "(red: tracer brighter), colour scale clipped at the 99th percentile of its magnitude."]
 
 
-def _environment(command: str) -> list[str]:
+def environment(command: str) -> list[str]:
     from .mitsuba_render import version
 
     packages = ", ".join(f"{p} {package_version(p)}" for p in ("drjit", "numpy", "scipy", "scikit-image", "matplotlib"))
@@ -190,7 +190,7 @@ def generate(scene_file: str | Path, out: Path | None = None, config: Config = C
               "rate 1e-3 per run (validation/stats.py). Mitsuba against its own reference calibrates it: every "
               f"Mitsuba `FAIL` is a false alarm, {false_alarms} of {len(mitsuba_rows)} runs here. The nominal rate "
               "assumes normal pass means, which few samples per pixel in caustics do not give.", "",
-              "## Machine and versions", ""] + _environment(command or " ".join(sys.argv))
+              "## Machine and versions", ""] + environment(command or " ".join(sys.argv))
     lines += ["", "All rows: `runs.csv` / `runs.json` beside this file."]
     (out / "README.md").write_text("\n".join(lines) + "\n")
     return out / "README.md"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from .references import scene_files
+from .scenefile import referenced_files
 
 BOX_FILTER = '<rfilter type="box"/>'
 
@@ -13,7 +13,7 @@ BOX_FILTER = '<rfilter type="box"/>'
 def write_variant(scene_file: Path, text: str, folder: Path, name: str) -> Path:
     """Writes `text` as folder/name.xml and copies the meshes of `scene_file` to the same relative paths."""
     scene_file = Path(scene_file)
-    for mesh in scene_files(scene_file)[1:]:
+    for mesh in referenced_files(scene_file)[1:]:
         target = folder / mesh.relative_to(scene_file.parent)
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(mesh, target)

@@ -1,20 +1,29 @@
 """Statistical agreement between two renderers from independent passes of each.
 
-Welch's t-test per block of pixels and channel, Bonferroni-corrected over all blocks: with a
-family-wise false-positive rate `alpha`, two unbiased renderers fail together with probability at most
-`alpha` (given approximately normal pass means, which averaging blocks of samples provides).
+Two tests on the same blocks (the passes averaged over block x block tiles, per channel):
 
-Blocks lit only by rare events (a caustic a few samples reach) have pass means far from normal and a
-pass variance that few passes underestimate. A block is therefore rejected only if its difference is
-also larger than `resolution` times the reference image's mean radiance (default 1e-3): the test
-resolves biases down to 0.1% of the image's brightness, not below.
+- `compare` — the verdict `validate check` gives (its design and its measured false-alarm rate:
+  reports/calibration.md). Welch's t-test per block and channel (Welch 1947; for renderers: Jung,
+  Hanika and Dachsbacher, JCGT 9(2), 2020), Bonferroni-corrected, on an equal-budget design: both sides
+  have the same passes and samples per pass, so the skew of the two pass means cancels in their
+  difference; the image means per channel are tested beside the blocks. A block whose passes hold an outlier on either side (Grubbs' test, Grubbs 1950) or whose
+  mean rests on fewer than MIN_NONZERO non-black passes is decided by a few rare samples; the normal
+  approximation is not trusted there, and a rejection there makes the verdict `inconclusive`, never
+  `disagree`.
+- `welch_test` — the earlier test, kept for the calibration report's comparison: the same Welch test
+  against any reference, with a `resolution` floor (a difference below `resolution` times the reference's
+  mean radiance is never rejected).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
+
+GRUBBS_ALPHA = 0.01   # level of the per-side outlier test that marks a block as untrusted
+MIN_NONZERO = 4       # a block's mean must rest on at least this many non-black passes of each side
+VERDICTS = ("agree", "disagree", "inconclusive")
 
 
 @dataclass
@@ -45,25 +54,104 @@ def welch_test(a: np.ndarray, b: np.ndarray, alpha: float = 0.01, block: int = 4
                resolution: float = 1e-3) -> AgreementTest:
     """Do passes `a` and `b` (each (K, H, W, 3), `b` the reference) estimate the same image?"""
     xa, xb = block_means(a, block), block_means(b, block)
-    ka, kb = len(xa), len(xb)
-    if ka < 2 or kb < 2:
+    if len(xa) < 2 or len(xb) < 2:
         raise ValueError("Welch's test needs at least two passes of each renderer")
-    ma, mb = xa.mean(0), xb.mean(0)
-    va, vb = xa.var(0, ddof=1) / ka, xb.var(0, ddof=1) / kb
-    se2 = va + vb
-    diff = ma - mb
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = diff / np.sqrt(se2)
-        df = se2 ** 2 / (va ** 2 / (ka - 1) + vb ** 2 / (kb - 1))
-        p = 2 * stats.t.sf(np.abs(t), df)
-    # Blocks without variance in either renderer (black, or one constant emitter) agree only if equal.
-    exact = se2 == 0
-    scale = np.maximum(np.abs(ma), np.abs(mb))
-    p = np.where(exact, np.where(np.abs(diff) <= 1e-6 * scale, 1.0, 0.0), p)
-    t = np.where(exact, np.where(np.abs(diff) <= 1e-6 * scale, 0.0, np.inf), t)
+    t, p = _welch(xa, xb)
+    diff = xa.mean(0) - xb.mean(0)
     n = p.size
     resolvable = np.abs(diff) > resolution * float(b.mean())
     rejected = int(((p < alpha / n) & resolvable).sum())
     worst = np.unravel_index(int(np.argmin(p)), p.shape)
     return AgreementTest(rejected == 0, alpha, n, rejected, float(p.min()), tuple(int(i) for i in worst),
                          float(t[worst]))
+
+
+@dataclass
+class Comparison:
+    """The outcome of `compare`: a verdict and the numbers behind it."""
+    verdict: str                  # agree | disagree | inconclusive
+    alpha: float                  # family-wise false-positive rate
+    tests: int                    # blocks x channels
+    rejected: int                 # rejected tests (blocks and image means) whose normal approximation is trusted
+    untrusted_rejected: int       # rejected tests decided by a few rare samples
+    untrusted: int                # blocks decided by a few rare samples (rejected or not)
+    min_p: float                  # smallest p-value over all blocks
+    worst_block: tuple[int, int, int]   # (block row, block column, channel) of min_p
+    worst_t: float
+    mean_test: float              # image means of the two sides
+    mean_reference: float
+    p: np.ndarray = field(repr=False)          # (rows, columns, 3) p-values
+    rejected_map: np.ndarray = field(repr=False)   # (rows, columns, 3) bool
+    trusted: np.ndarray = field(repr=False)        # (rows, columns, 3) bool
+    p_image: np.ndarray = field(repr=False)        # (3,) p-values of the image means
+    image_rejected: np.ndarray = field(repr=False)   # (3,) bool
+
+    @property
+    def relative_mean_difference(self) -> float:
+        scale = abs(self.mean_reference)
+        return (self.mean_test - self.mean_reference) / scale if scale > 0 else (0.0 if self.mean_test == 0
+                                                                                   else float("inf"))
+
+    def summary(self) -> str:
+        r, c, ch = self.worst_block
+        return (f"{self.verdict}: {self.rejected}/{self.tests + 3} tests rejected"
+                f"{f' (+{self.untrusted_rejected} decided by rare samples)' if self.untrusted_rejected else ''}"
+                f" at family-wise alpha {self.alpha:g}; worst block ({r}, {c}) {'RGB'[ch]} p = {self.min_p:.3g}, "
+                f"t = {self.worst_t:.2f}; image mean {self.relative_mean_difference:+.2%} vs reference")
+
+
+def grubbs_critical(k: int, alpha: float = GRUBBS_ALPHA) -> float:
+    """Two-sided critical value of Grubbs' outlier statistic max|x - mean| / s for k normal samples."""
+    t = stats.t.isf(alpha / (2 * k), k - 2)
+    return (k - 1) / np.sqrt(k) * np.sqrt(t * t / (k - 2 + t * t))
+
+
+def rare_sample_blocks(x: np.ndarray) -> np.ndarray:
+    """(K, ...) pass means -> bool (...): blocks whose mean a few passes decide (an outlier pass, or
+    fewer than MIN_NONZERO non-black passes in a block that is not black)."""
+    k = len(x)
+    s = x.std(0, ddof=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        g = np.where(s > 0, np.abs(x - x.mean(0)).max(0) / s, 0.0)
+    nonzero = (x != 0).sum(0)
+    return (g > grubbs_critical(k)) | ((nonzero > 0) & (nonzero < MIN_NONZERO))
+
+
+def _welch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Welch's t and two-sided p of (K, ...) samples `a` against `b`, elementwise; elements without
+    variance on either side get p = 1 if the means are equal, else p = 0."""
+    ka, kb = len(a), len(b)
+    ma, mb = a.mean(0), b.mean(0)
+    va, vb = a.var(0, ddof=1) / ka, b.var(0, ddof=1) / kb
+    se2, diff = va + vb, ma - mb
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = diff / np.sqrt(se2)
+        df = se2 ** 2 / (va ** 2 / (ka - 1) + vb ** 2 / (kb - 1))
+        p = 2 * stats.t.sf(np.abs(t), df)
+    exact = se2 == 0
+    equal = np.abs(diff) <= 1e-6 * np.maximum(np.abs(ma), np.abs(mb))
+    return np.where(exact, np.where(equal, 0.0, np.inf), t), np.where(exact, np.where(equal, 1.0, 0.0), p)
+
+
+def compare(a: np.ndarray, b: np.ndarray, alpha: float) -> Comparison:
+    """Do block pass means `a` (K, rows, columns, 3), the renderer under test, and `b`, the reference,
+    estimate the same image? See the module's docstring.
+
+    Half of `alpha` goes to the blocks (Bonferroni over blocks and channels), half to the image means per
+    channel (a bias spread over the whole image, too small for any one block, shows there)."""
+    if len(a) < 3 or len(b) < 3:
+        raise ValueError("the comparison needs at least three passes of each renderer")
+    t, p = _welch(a, b)
+    rejected = p < alpha / 2 / p.size
+    trusted = ~(rare_sample_blocks(a) | rare_sample_blocks(b))
+    ga, gb = a.mean((1, 2)), b.mean((1, 2))          # (K, 3) image means of each pass
+    _, p_image = _welch(ga, gb)
+    image_rejected = p_image < alpha / 2 / p_image.size
+    image_trusted = ~(rare_sample_blocks(ga) | rare_sample_blocks(gb))
+    n_trusted = int((rejected & trusted).sum() + (image_rejected & image_trusted).sum())
+    n_untrusted = int((rejected & ~trusted).sum() + (image_rejected & ~image_trusted).sum())
+    verdict = "disagree" if n_trusted else "inconclusive" if n_untrusted else "agree"
+    worst = np.unravel_index(int(np.argmin(p)), p.shape)
+    return Comparison(verdict, alpha, p.size, n_trusted, n_untrusted, int((~trusted).sum()), float(p.min()),
+                      tuple(int(i) for i in worst), float(t[worst]), float(a.mean()), float(b.mean()),
+                      p, rejected, trusted, p_image, image_rejected)

@@ -1,0 +1,134 @@
+"""`validate check`: the verdict's rules on synthetic pass means, its outputs (exit codes, JSON, JUnit) and its
+refusals of bad input, each in one line."""
+import json
+import sys
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+
+from validation import cli
+from validation.check import Settings, exit_code, write_json, write_junit
+from validation.scenefile import ScenePlanError, plan
+from validation.stats import compare, grubbs_critical
+
+from .conftest import SCENES
+
+ALPHA = 1e-3
+
+
+def normal_passes(seed: int, mean: float = 1.0, sd: float = 0.1, k: int = 16, shape=(8, 8, 3)) -> np.ndarray:
+    return np.random.default_rng(seed).normal(mean, sd, (k, *shape))
+
+
+def test_grubbs_critical_values_match_published_tables():
+    # Grubbs (1950) / NIST two-sided critical values at alpha 0.05: n = 10 -> 2.29, n = 20 -> 2.71
+    assert grubbs_critical(10, 0.05) == pytest.approx(2.29, abs=0.01)
+    assert grubbs_critical(20, 0.05) == pytest.approx(2.71, abs=0.01)
+
+
+def test_equal_normal_passes_agree_at_about_the_nominal_rate():
+    """200 null comparisons of normal pass means at family-wise alpha 0.1: the disagree count is
+    binomial(200, <= 0.1); 40 or more has probability below 1e-4 even at exactly 0.1."""
+    disagree = sum(compare(normal_passes(2 * i), normal_passes(2 * i + 1), 0.1).verdict == "disagree"
+                   for i in range(200))
+    assert disagree < 40
+
+
+def test_a_one_percent_bias_in_every_block_disagrees():
+    result = compare(normal_passes(1, 1.01, 0.02), normal_passes(2), ALPHA)
+    assert result.verdict == "disagree", result.summary()
+
+
+def test_a_bias_too_small_for_any_block_is_caught_by_the_image_mean():
+    a, b = normal_passes(3, 1.015, 0.05), normal_passes(4, 1.0, 0.05)
+    result = compare(a, b, ALPHA)
+    assert result.rejected_map.sum() == 0 and result.image_rejected.any(), result.summary()
+    assert result.verdict == "disagree"
+
+
+def test_a_rejection_decided_by_one_rare_pass_is_inconclusive():
+    a, b = normal_passes(5, 1.0, 0.01), normal_passes(6, 1.0, 0.01)
+    a[3, 2, 2, 0] = 1.06          # one outlying pass in one block (Grubbs' G about 3.4 > 2.85)
+    b[:, 2, 2, 0] -= 0.03         # and a shift that Welch's test alone would reject there
+    result = compare(a, b, ALPHA)
+    assert result.rejected == 0 and result.untrusted_rejected >= 1, result.summary()
+    assert result.verdict == "inconclusive"
+
+
+def test_black_images_agree_and_a_black_side_against_light_disagrees():
+    black = np.zeros((16, 8, 8, 3))
+    assert compare(black, black, ALPHA).verdict == "agree"
+    lit = np.ones((16, 8, 8, 3))
+    assert compare(black, lit, ALPHA).verdict == "disagree"
+
+
+def test_exit_codes_json_and_junit(tmp_path):
+    class Fake:
+        def __init__(self, verdict):
+            self.verdict, self.seconds, self.scene, self.renderer, self.max_depth = verdict, 1.0, "s.xml", "r", 3
+            self.note = ""
+            self.comparison = compare(normal_passes(7), normal_passes(8), ALPHA)
+
+        def line(self):
+            return f"{self.verdict} line"
+
+        def as_dict(self):
+            return {"verdict": self.verdict}
+
+    assert exit_code([Fake("agree")]) == 0
+    assert exit_code([Fake("agree"), Fake("inconclusive")]) == 3
+    assert exit_code([Fake("inconclusive"), Fake("disagree")]) == 1
+    results = [Fake("agree"), Fake("disagree"), Fake("inconclusive")]
+    write_json(results, tmp_path / "r.json")
+    assert json.loads((tmp_path / "r.json").read_text())["exit_code"] == 1
+    write_junit(results, tmp_path / "r.xml")
+    suite = ET.parse(tmp_path / "r.xml").getroot().find("testsuite")
+    assert (suite.get("tests"), suite.get("failures"), suite.get("skipped")) == ("3", "1", "1")
+    assert len(suite.findall("testcase/failure")) == 1
+
+
+def test_film_size_and_depth_override_any_scene(tmp_path):
+    """A scene without <default>s: -D width/height/max_depth still apply (to both renderers)."""
+    text = (SCENES / "stress" / "glass_sphere.xml").read_text()
+    for name, value in (("spp", "16"), ("width", "32"), ("height", "32"), ("max_depth", "-1")):
+        text = text.replace(f'<default name="{name}" value="{value}"/>', "").replace(f"${name}", value)
+    scene = tmp_path / "no_defaults.xml"
+    scene.write_text(text)
+    p = plan(scene, {"width": "20", "height": "12", "max_depth": "3"})
+    assert (p.width, p.height, p.max_depth) == (20, 12, 3)
+    assert p.tracer_scene().camera.width == 20
+    assert '<integer name="width" value="20"' in p.mitsuba_xml()
+    assert plan(scene, size=16).width == 16
+    with pytest.raises(ScenePlanError, match="declares no <default"):
+        plan(scene, {"colour": "1"})
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--passes", "1"], "passes must be an integer of at least 3"),
+    (["--spp", "0"], "spp must be an integer of at least 1"),
+    (["--alpha", "2"], "alpha must lie strictly between 0 and 1"),
+    (["-D", "nope"], "expected NAME=VALUE"),
+    (["--renderer", "render {scene}"], "must contain {output}"),
+    (["--renderer", "render {scene} {output} {nonsense}"], "bad placeholder"),
+    (["--report-depth", "-3", "--estimator", "report"], "--report-depth must be at least 0"),
+])
+def test_bad_arguments_are_refused_in_one_line(args, message, capsys):
+    assert cli.main(["check", str(SCENES / "hexagon_room.xml"), *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and "\n" not in err and "Traceback" not in err
+
+
+def test_missing_scene_and_failing_renderer_are_refused(tmp_path, capsys):
+    assert cli.main(["check", str(tmp_path / "none.xml")]) == 2
+    assert "not found" in capsys.readouterr().err
+    command = f"{sys.executable} -c \"import sys; sys.exit('broken renderer')\" {{output}}"
+    assert cli.main(["check", str(SCENES / "hexagon_room.xml"), "--renderer", command, "--passes", "3"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "broken renderer" in err and "\n" not in err
+
+
+def test_check_on_a_black_scene_agrees(capsys):
+    code = cli.main(["check", str(SCENES / "stress" / "empty.xml"), "--passes", "4", "--spp", "4"])
+    out = capsys.readouterr().out
+    assert code == 0 and "both images are black" in out, out

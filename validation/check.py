@@ -1,0 +1,200 @@
+"""`validate check`: is a renderer right on a scene? A verdict a CI can act on.
+
+For each scene, estimator and depth: the renderer under test renders `passes` independent passes; Mitsuba
+renders the same number of passes at the same samples per pass (an equal-budget reference, cached by the
+scene's content); `stats.compare` decides `agree`, `disagree` or `inconclusive`. An inconclusive comparison
+(a rejection only in blocks decided by a few rare samples) is repeated at 4x the samples per pass, up to
+`max_spp`; what is still inconclusive then says what would settle it.
+
+The branching (report) estimator traces many rays per camera ray: its reference has REPORT_REFERENCE_SPP
+times its camera rays per pass, so that both sides' pass means are about as noisy.
+"""
+from __future__ import annotations
+
+import json
+import time
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import protocol
+from .references import Reference, mitsuba_reference
+from .renderers import ExternalRenderer, TracerRenderer
+from .scenefile import ScenePlan, ScenePlanError, plan
+from .stats import Comparison, block_means, compare
+
+REPORT_REFERENCE_SPP = 32   # Mitsuba samples per pass per camera ray of the branching estimator
+EXIT_CODES = {"agree": 0, "disagree": 1, "inconclusive": 3}
+EXIT_USAGE = 2
+
+
+@dataclass(frozen=True)
+class Settings:
+    passes: int = protocol.PASSES
+    spp: int | None = None          # per pass; None: protocol.SPP (branching estimator: protocol.REPORT_SPP)
+    seed: int = protocol.SEED_TEST
+    alpha: float = protocol.ALPHA
+    size: int | None = protocol.SIZE
+    max_spp: int = protocol.MAX_SPP
+
+    def __post_init__(self):
+        for name, low in (("passes", 3), ("spp", 1), ("size", 4), ("max_spp", 1)):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < low):
+                raise ScenePlanError(f"{name} must be an integer of at least {low}, got {value!r}")
+        if not 0 < self.alpha < 1:
+            raise ScenePlanError(f"alpha must lie strictly between 0 and 1, got {self.alpha}")
+        if not 0 <= self.seed < 2**31:
+            raise ScenePlanError(f"seed must lie in [0, 2^31), got {self.seed}")
+
+
+@dataclass
+class CheckResult:
+    scene: str
+    renderer: str
+    max_depth: int
+    verdict: str
+    spp: int                   # samples per pass of the renderer under test, after any escalation
+    reference_spp: int         # Mitsuba's samples per pass
+    passes: int
+    seconds: float             # rendering and testing, reference included unless cached
+    width: int
+    height: int
+    comparison: Comparison = field(repr=False)
+    note: str = ""
+
+    def line(self) -> str:
+        c = self.comparison
+        r, col, ch = c.worst_block
+        return (f"{self.verdict:<12} {self.scene} [{self.renderer}, max_depth {self.max_depth}]: "
+                f"{c.rejected}/{c.tests + 3} tests rejected"
+                f"{f' (+{c.untrusted_rejected} decided by rare samples)' if c.untrusted_rejected else ''}, "
+                f"worst block ({r}, {col}) {'RGB'[ch]} p = {c.min_p:.2g}, image mean {c.relative_mean_difference:+.2%}; "
+                f"{self.passes} x {self.spp} spp vs Mitsuba {self.passes} x {self.reference_spp} spp, "
+                f"{self.width} x {self.height}, {self.seconds:.1f} s" + (f"; {self.note}" if self.note else ""))
+
+    def as_dict(self) -> dict:
+        c = self.comparison
+        return {"scene": self.scene, "renderer": self.renderer, "max_depth": self.max_depth,
+                "verdict": self.verdict, "spp": self.spp, "reference_spp": self.reference_spp,
+                "passes": self.passes, "width": self.width, "height": self.height, "seconds": self.seconds,
+                "alpha": c.alpha, "tests": c.tests, "rejected": c.rejected,
+                "rejected_rare": c.untrusted_rejected, "min_p": c.min_p, "worst_block": list(c.worst_block),
+                "worst_t": c.worst_t, "mean": c.mean_test, "reference_mean": c.mean_reference,
+                "relative_mean_difference": c.relative_mean_difference, "note": self.note}
+
+
+def reference_spp(renderer, spp: int) -> int:
+    is_branching = isinstance(renderer, TracerRenderer) and renderer.estimator == "report"
+    return spp * REPORT_REFERENCE_SPP if is_branching else spp
+
+
+def default_spp(renderer) -> int:
+    is_branching = isinstance(renderer, TracerRenderer) and renderer.estimator == "report"
+    return protocol.REPORT_SPP if is_branching else protocol.SPP
+
+
+def check(scene_file: str | Path, renderer: TracerRenderer | ExternalRenderer, max_depth: int | None = None,
+          defines: dict[str, str] | None = None, settings: Settings = Settings(),
+          output: Path | None = None) -> CheckResult:
+    """The verdict on one scene, renderer and depth (see the module's docstring). With `output`, a
+    disagreeing or inconclusive check writes its images there (ours, reference, difference, blocks)."""
+    scene_plan = plan(scene_file, defines, settings.size, max_depth)
+    if isinstance(renderer, TracerRenderer) and renderer.estimator == "report" and scene_plan.max_depth < 0:
+        raise ScenePlanError("the branching (report) estimator needs a finite max_depth (--max-depth or "
+                         "--report-depth)")
+    spp = settings.spp or default_spp(renderer)
+    start = time.perf_counter()
+    while True:
+        ours = renderer.passes(scene_plan, settings.passes, spp, settings.seed)
+        ref = mitsuba_reference(scene_plan, settings.passes, reference_spp(renderer, spp))
+        comparison = compare(block_means(ours, protocol.BLOCK), ref.blocks, settings.alpha)
+        if comparison.verdict != "inconclusive" or spp * 4 > settings.max_spp:
+            break
+        spp *= 4
+    result = CheckResult(str(scene_file), renderer.label, scene_plan.max_depth, comparison.verdict, spp,
+                         reference_spp(renderer, spp), settings.passes, time.perf_counter() - start,
+                         scene_plan.width, scene_plan.height, comparison, _note(comparison, spp, settings, ours))
+    if output is not None and result.verdict != "agree":
+        write_images(output, scene_plan, result, ours.mean(0), ref)
+    return result
+
+
+def _note(c: Comparison, spp: int, settings: Settings, ours: np.ndarray) -> str:
+    if c.verdict == "inconclusive":
+        return (f"the rejected blocks are decided by a few rare samples; settle it with more than {spp} spp "
+                f"per pass (--spp {spp * 4} or --max-spp {max(spp * 4, settings.max_spp * 4)})")
+    if c.mean_reference == 0 and not ours.any():
+        return "both images are black"
+    return ""
+
+
+def write_images(folder: Path, scene_plan: ScenePlan, result: CheckResult, ours: np.ndarray, ref: Reference) -> None:
+    """ours.exr/png, reference.exr/png, difference.png (red: ours brighter), blocks.png (rejected blocks:
+    red, rejected but decided by rare samples: orange, else grey by -log10 p)."""
+    from tracer.imageio import write_exr, write_png
+
+    from .plots import signed_colours
+
+    folder = Path(folder) / f"{scene_plan.path.stem}-d{result.max_depth}-{_slug(result.renderer)}"
+    folder.mkdir(parents=True, exist_ok=True)
+    write_exr(folder / "ours.exr", ours)
+    write_exr(folder / "reference.exr", ref.mean)
+    write_png(folder / "ours.png", ours)
+    write_png(folder / "reference.png", ref.mean)
+    _write_rgb8(folder / "difference.png", signed_colours((ours - ref.mean).mean(-1)))
+    _write_rgb8(folder / "blocks.png", _block_map(result.comparison, scene_plan))
+
+
+def _block_map(c: Comparison, scene_plan: ScenePlan) -> np.ndarray:
+    shade = np.clip(-np.log10(np.maximum(c.p.min(-1), 1e-300)) / -np.log10(c.alpha / c.tests), 0, 1)
+    rgb = np.repeat((0.15 + 0.6 * shade)[..., None], 3, axis=-1)
+    rgb[(c.rejected_map & ~c.trusted).any(-1)] = (1.0, 0.6, 0.0)
+    rgb[(c.rejected_map & c.trusted).any(-1)] = (0.9, 0.1, 0.1)
+    big = np.kron(rgb, np.ones((protocol.BLOCK, protocol.BLOCK, 1)))
+    out = np.zeros((scene_plan.height, scene_plan.width, 3))
+    out[:big.shape[0], :big.shape[1]] = big
+    return out
+
+
+def _write_rgb8(path: Path, rgb: np.ndarray) -> None:
+    from PIL import Image
+
+    Image.fromarray(np.round(np.clip(rgb, 0, 1) * 255).astype(np.uint8), "RGB").save(path)
+
+
+def _slug(text: str) -> str:
+    return "".join(ch if ch.isalnum() else "-" for ch in text).strip("-")[:40]
+
+
+def exit_code(results: list[CheckResult]) -> int:
+    verdicts = {r.verdict for r in results}
+    return 1 if "disagree" in verdicts else 3 if "inconclusive" in verdicts else 0
+
+
+def write_json(results: list[CheckResult], path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"exit_code": exit_code(results), "checks": [r.as_dict() for r in results]},
+                               indent=1) + "\n")
+
+
+def write_junit(results: list[CheckResult], path: Path) -> None:
+    """JUnit XML: one test case per scene x renderer x depth; disagree is a failure, inconclusive skipped."""
+    suite = ET.Element("testsuite", name="validate check", tests=str(len(results)),
+                       failures=str(sum(r.verdict == "disagree" for r in results)),
+                       skipped=str(sum(r.verdict == "inconclusive" for r in results)),
+                       time=f"{sum(r.seconds for r in results):.3f}")
+    for r in results:
+        case = ET.SubElement(suite, "testcase", classname=f"validate.check.{Path(r.scene).stem}",
+                             name=f"{r.renderer} max_depth={r.max_depth}", time=f"{r.seconds:.3f}")
+        if r.verdict == "disagree":
+            ET.SubElement(case, "failure", message=r.comparison.summary()).text = r.line()
+        elif r.verdict == "inconclusive":
+            ET.SubElement(case, "skipped", message=r.note or r.comparison.summary())
+        ET.SubElement(case, "system-out").text = r.line()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    root = ET.Element("testsuites")
+    root.append(suite)
+    ET.ElementTree(root).write(path, encoding="unicode", xml_declaration=True)

@@ -1,0 +1,201 @@
+"""A scene file as one comparison renders it: its `<default>`s overridden (like `mitsuba -D`), and the film
+size and depth set whether or not the file declares them as parameters.
+
+Both renderers read the same settings: Mitsuba from the XML with the film and integrator properties
+rewritten (loaded from a string, with the scene's folder on Mitsuba's file resolver), the tracer from the
+file with its camera resized. `content_key` hashes the file, every file it names (meshes, includes,
+textures) and the settings, so that a cached result is never reused for an edited scene.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+SET_ANYWHERE = ("width", "height", "max_depth", "spp")   # -D names a check applies to any scene
+MITSUBA_FILM = (768, 576)      # hdrfilm's default size
+MITSUBA_MAX_DEPTH = -1         # the path integrator's default
+
+
+class ScenePlanError(ValueError):
+    """A scene or an override a comparison cannot use (a user error: reported in one line)."""
+
+
+@dataclass(frozen=True)
+class ScenePlan:
+    path: Path
+    width: int
+    height: int
+    max_depth: int
+    params: dict[str, str] = field(default_factory=dict)   # the scene's own <default>s, overridden
+
+    def mitsuba_xml(self) -> str:
+        """The scene's XML with the film size and max_depth written into it."""
+        root = _parse(self.path)
+        sensor = _first(root, "sensor", self.path)
+        film = sensor.find("film")
+        if film is None:
+            film = ET.SubElement(sensor, "film", {"type": "hdrfilm"})
+        _set(film, "integer", "width", str(self.width))
+        _set(film, "integer", "height", str(self.height))
+        integrator = root.find("integrator")
+        if integrator is None:
+            integrator = ET.Element("integrator", {"type": "path"})
+            root.insert(0, integrator)
+        if integrator.get("type") != "path":
+            raise ScenePlanError(f"{self.path}: <integrator type=\"{integrator.get('type')}\">: the comparison "
+                                 "uses Mitsuba's path integrator")
+        _set(integrator, "integer", "max_depth", str(self.max_depth))
+        return ET.tostring(root, encoding="unicode")
+
+    def mitsuba_scene(self, spp: int):
+        """The scene loaded by Mitsuba (the variant of validation.mitsuba_render.mitsuba())."""
+        from .mitsuba_render import mitsuba
+
+        mi = mitsuba()
+        saved = mi.FileResolver(mi.file_resolver())
+        mi.file_resolver().prepend(str(self.path.parent.resolve()))
+        text = self.mitsuba_xml()
+        params = {k: v for k, v in (self.params | {"spp": str(spp)}).items() if k in _names(text)}
+        try:
+            return mi.load_string(text, **params)
+        except RuntimeError as e:
+            raise ScenePlanError(f"{self.path}: Mitsuba cannot load the scene: {_last_line(e)}") from None
+        finally:
+            mi.set_file_resolver(saved)
+
+    def tracer_scene(self):
+        """The scene loaded by the tracer, its camera at this plan's size."""
+        import tracer
+
+        scene = tracer.load_scene(self.path, **{k: v for k, v in self.params.items() if k in _names(self.path.read_text(errors="replace"))})
+        return replace(scene, camera=replace(scene.camera, width=self.width, height=self.height))
+
+    def defines(self, spp: int) -> list[str]:
+        """`-D name=value` arguments that give an external renderer this plan's settings."""
+        values = dict(self.params) | {"width": self.width, "height": self.height, "max_depth": self.max_depth,
+                                      "spp": spp}
+        return [f"{k}={v}" for k, v in values.items()]
+
+    def content_key(self, **settings) -> str:
+        """SHA-256 over the scene's files, this plan and `settings` (spp, passes, seed, renderer...)."""
+        h = hashlib.sha256()
+        for f in referenced_files(self.path):
+            h.update(f.name.encode())
+            h.update(f.read_bytes())
+        h.update(json.dumps({"width": self.width, "height": self.height, "max_depth": self.max_depth,
+                             "params": self.params, **settings}, sort_keys=True, default=str).encode())
+        return h.hexdigest()[:24]
+
+
+def plan(path: str | Path, defines: dict[str, str] | None = None, size: int | None = None,
+         max_depth: int | None = None) -> ScenePlan:
+    """The settings a comparison renders `path` with.
+
+    `defines` override the scene's `<default>`s; width, height and max_depth may be given for any scene.
+    Without a width or height, the scene's film is scaled so that its longer side is `size` (None: as is).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ScenePlanError(f"scene file '{path}' not found")
+    defines = dict(defines or {})
+    root = _parse(path)
+    declared = {d.get("name"): d.get("value", "") for d in root.findall("default")}
+    unknown = sorted(set(defines) - set(declared) - set(SET_ANYWHERE))
+    if unknown:
+        raise ScenePlanError(f"{path}: -D {unknown[0]}: the scene declares no <default name=\"{unknown[0]}\"> "
+                             f"(it declares: {', '.join(sorted(declared)) or 'none'}; any scene takes "
+                             f"{', '.join(SET_ANYWHERE)})")
+    params = declared | {k: v for k, v in defines.items() if k in declared}
+    width, height = _film_size(root, params, path)
+    if "width" in defines or "height" in defines:
+        width = _integer(defines.get("width", width), "width", path)
+        height = _integer(defines.get("height", height), "height", path)
+    elif size is not None:
+        scale = size / max(width, height)
+        width, height = max(1, round(width * scale)), max(1, round(height * scale))
+    if max_depth is None:
+        max_depth = _integer(defines.get("max_depth", _scene_max_depth(root, params, path)), "max_depth", path)
+    if max_depth < -1 or max_depth == 0:
+        raise ScenePlanError(f"max_depth must be -1 (unbounded) or at least 1, got {max_depth}")
+    params |= {k: str(v) for k, v in (("width", width), ("height", height), ("max_depth", max_depth))
+               if k in declared}
+    return ScenePlan(path, width, height, max_depth, params)
+
+
+def referenced_files(path: Path) -> list[Path]:
+    """`path` and every existing file it names with a `filename` (meshes, textures, includes), recursively."""
+    seen: list[Path] = []
+    todo = [Path(path)]
+    while todo:
+        f = todo.pop()
+        if f in seen or not f.is_file():
+            continue
+        seen.append(f)
+        text = f.read_text(errors="replace") if f.suffix.lower() == ".xml" else ""
+        folders = [f.parent] + [f.parent / p for p in re.findall(r'<path\s+value="([^"]+)"', text)]
+        for name in re.findall(r'(?:name="filename"\s+value|<include\s+filename)="([^"$]+)"', text):
+            todo += [d / name for d in folders if (d / name).is_file()][:1]
+    return [seen[0]] + sorted(seen[1:])
+
+
+def _parse(path: Path) -> ET.Element:
+    try:
+        return ET.parse(path).getroot()
+    except ET.ParseError as e:
+        raise ScenePlanError(f"{path}: malformed XML: {e}") from None
+    except OSError as e:
+        raise ScenePlanError(f"{path}: {e.strerror}") from None
+
+
+def _first(root: ET.Element, tag: str, path: Path) -> ET.Element:
+    node = root.find(tag)
+    if node is None:
+        raise ScenePlanError(f"{path}: the scene has no <{tag}>")
+    return node
+
+
+def _set(node: ET.Element, tag: str, name: str, value: str) -> None:
+    prop = next((c for c in node if c.get("name") == name), None)
+    if prop is None:
+        prop = ET.SubElement(node, tag, {"name": name})
+    prop.set("value", value)
+
+
+def _value(node: ET.Element | None, name: str, params: dict[str, str]) -> str | None:
+    prop = None if node is None else next((c for c in node if c.get("name") == name), None)
+    if prop is None:
+        return None
+    return re.sub(r"\$([A-Za-z_][A-Za-z0-9_]*)", lambda m: params.get(m.group(1), m.group(0)), prop.get("value", ""))
+
+
+def _integer(text, name: str, path: Path) -> int:
+    try:
+        return int(text)
+    except (TypeError, ValueError):
+        raise ScenePlanError(f"{path}: {name} must be an integer, got '{text}'") from None
+
+
+def _film_size(root: ET.Element, params: dict[str, str], path: Path) -> tuple[int, int]:
+    film = _first(root, "sensor", path).find("film")
+    w, h = _value(film, "width", params), _value(film, "height", params)
+    return (_integer(w, "width", path) if w is not None else MITSUBA_FILM[0],
+            _integer(h, "height", path) if h is not None else MITSUBA_FILM[1])
+
+
+def _scene_max_depth(root: ET.Element, params: dict[str, str], path: Path) -> int:
+    value = _value(root.find("integrator"), "max_depth", params)
+    return MITSUBA_MAX_DEPTH if value is None else _integer(value, "max_depth", path)
+
+
+def _last_line(e: Exception) -> str:
+    lines = [line.strip() for line in str(e).splitlines() if line.strip()]
+    return lines[-1] if lines else type(e).__name__
+
+
+def _names(text: str) -> set[str]:
+    """The parameters ($name) a scene's text uses."""
+    return set(re.findall(r"\$([A-Za-z_][A-Za-z0-9_]*)", text))
