@@ -192,24 +192,12 @@ def _reference(args) -> None:
           f"{ref.mean.mean():.4f}, rendered in {ref.seconds:.1f} s (key {ref.key})")
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
-    if args.command == "check":
-        from .renderers import RendererError
-        from .scenefile import ScenePlanError
-        from tracer.scene import SceneError
+COMMANDS = {"report": "_report", "reference": "_reference", "improvements": "_improvements"}
 
-        try:
-            return _check(args)
-        except (ScenePlanError, SceneError, RendererError) as e:
-            if _interrupted(e):
-                print("validate: interrupted", file=sys.stderr)
-                return 130
-            print(f"validate: error: {e}", file=sys.stderr)
-            return 2
-        except KeyboardInterrupt:
-            print("validate: interrupted", file=sys.stderr)
-            return 130
+
+def _run(args) -> int:
+    if args.command == "check":
+        return _check(args)
     if args.command == "calibrate":
         from .calibration import report
 
@@ -229,22 +217,43 @@ def main(argv: list[str] | None = None) -> int:
 
         print(table(args.output))
         return 0
+    from .scenefile import ScenePlanError
+
     if not args.scene.is_file():
-        print(f"validate: error: scene file '{args.scene}' not found", file=sys.stderr)
-        return 2
-    for name, value in (("size", getattr(args, "size", None)), ("sweep-size", getattr(args, "sweep_size", None))):
-        if value is not None and value < 8:
-            print(f"validate: error: --{name} must be at least 8, got {value}", file=sys.stderr)
-            return 2
-    try:
-        {"report": _report, "reference": _reference, "improvements": _improvements}[args.command](args)
-    except KeyboardInterrupt:
-        print("validate: interrupted; run the same command again to resume", file=sys.stderr)
-        return 130
-    except (ValueError, RuntimeError, OSError) as e:
-        print(f"validate: error: {e}", file=sys.stderr)
-        return 1
+        raise ScenePlanError(f"scene file '{args.scene}' not found")
+    for name, value, low in (("size", getattr(args, "size", None), 8), ("sweep-size", getattr(args, "sweep_size", None), 8),
+                             ("spp", getattr(args, "spp", None), 1), ("passes", getattr(args, "passes", None), 2)):
+        if value is not None and value < low:
+            raise ScenePlanError(f"--{name} must be at least {low}, got {value}")
+    globals()[COMMANDS[args.command]](args)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Runs a command: user errors in one line (exit 2), an interruption as such (exit 130), a bug with its
+    traceback."""
+    from tracer.scene import SceneError
+
+    from .renderers import RendererError
+    from .scenefile import ScenePlanError
+
+    args = _parser().parse_args(argv)
+    try:
+        return _run(args)
+    except BaseException as e:
+        if _interrupted(e):
+            resume = "; run the same command again to resume" if args.command in COMMANDS else ""
+            print(f"validate: interrupted{resume}", file=sys.stderr)
+            return 130
+        if isinstance(e, (ScenePlanError, SceneError, RendererError)):
+            print(f"validate: error: {e}", file=sys.stderr)
+            return 2
+        if isinstance(e, OSError) and e.filename:
+            print(f"validate: error: {e.filename}: {e.strerror}", file=sys.stderr)
+            return 1
+        if isinstance(e, Exception):
+            print("validate: internal error (a bug in the harness; the traceback follows)", file=sys.stderr)
+        raise
 
 
 if __name__ == "__main__":

@@ -15,6 +15,13 @@ from scipy import stats
 class Fit:
     slope: float
     intercept: float   # of log(rmse) = intercept + slope * log(seconds)
+    r2: float = 1.0
+    points: int = 0
+
+    @property
+    def meaningful(self) -> bool:
+        """At least 3 points on a line (r^2 >= 0.9) with a slope an estimator can have (-1 to 0)."""
+        return self.points >= 3 and self.r2 >= 0.9 and -1.0 <= self.slope <= 0.0
 
     def predict(self, seconds) -> np.ndarray:
         return np.exp(self.intercept + self.slope * np.log(seconds))
@@ -26,7 +33,7 @@ class Fit:
 def fit(seconds: list[float], rmse: list[float]) -> Fit:
     """scipy.stats.linregress on the logarithms."""
     result = stats.linregress(np.log(seconds), np.log(rmse))
-    return Fit(float(result.slope), float(result.intercept))
+    return Fit(float(result.slope), float(result.intercept), float(result.rvalue ** 2), len(seconds))
 
 
 def common_error(curves: dict[str, list[float]]) -> float:

@@ -82,10 +82,7 @@ class ScenePlan:
 
     def content_key(self, **settings) -> str:
         """SHA-256 over the scene's files, this plan and `settings` (spp, passes, seed, renderer...)."""
-        h = hashlib.sha256()
-        for f in referenced_files(self.path):
-            h.update(f.name.encode())
-            h.update(f.read_bytes())
+        h = hashlib.sha256(files_digest(self.path).encode())
         h.update(json.dumps({"width": self.width, "height": self.height, "max_depth": self.max_depth,
                              "params": self.params, **settings}, sort_keys=True, default=str).encode())
         return h.hexdigest()[:24]
@@ -124,6 +121,15 @@ def plan(path: str | Path, defines: dict[str, str] | None = None, size: int | No
     params |= {k: str(v) for k, v in (("width", width), ("height", height), ("max_depth", max_depth))
                if k in declared}
     return ScenePlan(path, width, height, max_depth, params)
+
+
+def files_digest(path: str | Path) -> str:
+    """SHA-256 of a scene's content: the file and every file it names (validation.scenefile.referenced_files)."""
+    h = hashlib.sha256()
+    for f in referenced_files(Path(path)):
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:16]
 
 
 def referenced_files(path: Path) -> list[Path]:

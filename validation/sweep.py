@@ -3,8 +3,9 @@
 A run is one (estimator, max_depth, spp, size, N, M) setting rendered as `passes` independent images;
 its row holds the time per image (compile time apart from render time), the error metrics of one
 image averaged over the passes, and Welch's test of the passes against the reference when passes >= 2.
-Rows are appended to a CSV file as each run finishes; a sweep that is started again skips the runs
-whose key is already there, so an interrupted sweep resumes where it stopped.
+Rows are appended to a CSV file as each run finishes, with a digest of the scene's content (the file and
+every file it names); a sweep that is started again skips the runs already there for the same content, so
+an interrupted sweep resumes where it stopped and an edited scene is rendered again.
 """
 from __future__ import annotations
 
@@ -19,12 +20,16 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-import tracer
 from tracer.render import render
 
-from .metrics import agreement, measure
+from .check import REPORT_REFERENCE_SPP
+from .metrics import measure
+from .protocol import ALPHA, BLOCK
+from .references import mitsuba_reference
+from .stats import block_means, compare
 from .mitsuba_render import mitsuba
 from .references import Reference
+from .scenefile import files_digest, plan
 
 ESTIMATORS = ("path", "report", "mitsuba")   # the tracer's two estimators and Mitsuba's `path` as a peer
 IMAGES = Path(".cache/runs")                # first image of every run, for the report's image panels
@@ -55,11 +60,11 @@ class RunSpec:
 
 FIELDS = [f.name for f in dataclasses.fields(RunSpec)] + [
     "key", "seconds", "compile_seconds", "render_seconds", "rays", "rmse", "rel_mse", "ssim",
-    "bias_r", "bias_g", "bias_b", "test", "rejected", "min_p"]
+    "bias_r", "bias_g", "bias_b", "test", "rejected", "min_p", "content"]
 
 
 def _tracer_images(scene_file: Path, spec: RunSpec) -> tuple[list[np.ndarray], list[float], list[float], int]:
-    scene = tracer.load_scene(scene_file, width=spec.size, height=spec.size)
+    scene = _plan(scene_file, spec).tracer_scene()
     extra = dict(direct=spec.direct, indirect=spec.indirect) if spec.estimator == "report" else {}
     images, renders, compiles, rays = [], [], [], 0
     for k in range(spec.passes):
@@ -74,7 +79,7 @@ def _tracer_images(scene_file: Path, spec: RunSpec) -> tuple[list[np.ndarray], l
 def _mitsuba_images(scene_file: Path, spec: RunSpec) -> tuple[list[np.ndarray], list[float], list[float], int]:
     """Mitsuba's passes; a warm-up render first, whose extra time over a timed render is its compile time."""
     mi = mitsuba()
-    scene = mi.load_file(str(scene_file), spp=spec.spp, max_depth=spec.max_depth, width=spec.size, height=spec.size)
+    scene = _plan(scene_file, spec).mitsuba_scene(spec.spp)
 
     def timed(seed: int) -> tuple[np.ndarray, float]:
         start = time.perf_counter()
@@ -85,6 +90,10 @@ def _mitsuba_images(scene_file: Path, spec: RunSpec) -> tuple[list[np.ndarray], 
     images, seconds = zip(*(timed(spec.seed * 1000 + k) for k in range(spec.passes)))
     render_s = float(np.mean(seconds))
     return list(images), list(seconds), [max(warmup - render_s, 0.0)] * spec.passes, 0
+
+
+def _plan(scene_file: Path, spec: RunSpec):
+    return plan(scene_file, {"width": str(spec.size), "height": str(spec.size)}, max_depth=spec.max_depth)
 
 
 def execute(scene_file: Path, spec: RunSpec, ref: Reference) -> tuple[dict, np.ndarray]:
@@ -99,10 +108,18 @@ def execute(scene_file: Path, spec: RunSpec, ref: Reference) -> tuple[dict, np.n
         **{f"bias_{c}": float(np.mean([m.bias[i] for m in metrics])) for i, c in enumerate("rgb")},
         "test": "", "rejected": "", "min_p": ""}
     row["seconds"] = row["render_seconds"] + row["compile_seconds"]
-    if spec.passes >= 2:
-        test = agreement(np.stack(images), ref)
-        row |= {"test": "pass" if test.passed else "FAIL", "rejected": test.rejected, "min_p": test.min_p}
+    if spec.passes >= 3:
+        test = check_run(scene_file, spec, np.stack(images))
+        row |= {"test": test.verdict, "rejected": test.rejected, "min_p": test.min_p}
     return row, images[0]
+
+
+def check_run(scene_file: Path, spec: RunSpec, images: np.ndarray):
+    """`validate check`'s test of a run's passes: against as many Mitsuba passes at the same samples per pass
+    (the branching estimator: REPORT_REFERENCE_SPP per camera ray), cached."""
+    spp = spec.spp * (REPORT_REFERENCE_SPP if spec.estimator == "report" else 1)
+    ref = mitsuba_reference(_plan(scene_file, spec), spec.passes, spp)
+    return compare(block_means(images, BLOCK), ref.blocks, ALPHA)
 
 
 def read_rows(path: Path) -> list[dict]:
@@ -124,6 +141,8 @@ def _number(text: str):
 
 
 def _append(path: Path, row: dict) -> None:
+    if path.exists() and path.stat().st_size and path.open().readline().strip() != ",".join(FIELDS):
+        path.replace(path.with_suffix(".old.csv"))   # another layout: kept aside, not appended to
     new = not path.exists() or path.stat().st_size == 0
     torn = not new and not path.read_bytes().endswith(b"\n")
     with path.open("a", newline="") as f:
@@ -138,7 +157,7 @@ def _append(path: Path, row: dict) -> None:
 
 
 def image_path(scene_file: Path, spec: RunSpec) -> Path:
-    return IMAGES / scene_file.stem / f"{spec.key}.npy"
+    return IMAGES / scene_file.stem / f"{spec.key}-{files_digest(scene_file)}.npy"
 
 
 def sweep(scene_file: str | Path, specs: list[RunSpec], references, results: Path) -> list[dict]:
@@ -147,15 +166,17 @@ def sweep(scene_file: str | Path, specs: list[RunSpec], references, results: Pat
     `references(max_depth, size)` gives the reference a spec is measured against.
     """
     scene_file = Path(scene_file)
-    done = {r["key"] for r in read_rows(results)}
+    content = "sha256:" + files_digest(scene_file)
+    done = {r["key"] for r in read_rows(results) if r.get("content") == content}
     todo = [s for s in dict.fromkeys(specs) if s.key not in done]
     results.parent.mkdir(parents=True, exist_ok=True)
     for spec in tqdm(todo, desc=f"{scene_file.stem}: runs", unit="run"):
         tqdm.write(f"  {spec.key}")
         row, image = execute(scene_file, spec, references(spec.max_depth, spec.size))
+        row["content"] = content
         image_path(scene_file, spec).parent.mkdir(parents=True, exist_ok=True)
         np.save(image_path(scene_file, spec), image)
         _append(results, row)
-    rows = read_rows(results)
+    rows = list({r["key"]: r for r in read_rows(results) if r.get("content") == content}.values())
     results.with_suffix(".json").write_text(json.dumps(rows, indent=1))
     return rows
