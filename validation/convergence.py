@@ -31,7 +31,9 @@ class Fit:
 
 
 def fit(seconds: list[float], rmse: list[float]) -> Fit:
-    """scipy.stats.linregress on the logarithms."""
+    """scipy.stats.linregress on the logarithms (no fit, NaN, where an error is 0: a black image)."""
+    if min(rmse) <= 0 or len(seconds) < 2:
+        return Fit(float("nan"), float("nan"), 0.0, len(seconds))
     result = stats.linregress(np.log(seconds), np.log(rmse))
     return Fit(float(result.slope), float(result.intercept), float(result.rvalue ** 2), len(seconds))
 

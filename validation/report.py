@@ -111,7 +111,8 @@ def _convergence_section(by_key, runs, out: Path) -> list[str]:
 def _depth_section(by_key, runs, ref_at, c: Config, out: Path) -> list[str]:
     means = {d: float(ref_at(d, c.sweep_size).mean.mean()) for d in DEPTHS}
     finite = [d for d in DEPTHS if d > 0]
-    share = [(means[d] - (means[d - 1] if d - 1 in means else 0.0)) / means[-1] for d in finite]
+    total = means[-1] or float("inf")    # a black scene: every share 0
+    share = [(means[d] - (means[d - 1] if d - 1 in means else 0.0)) / total for d in finite]
     labels = [str(d) for d in finite]
     curves = {specs[0].label: [(str(s.max_depth), by_key[s.key]["rmse"]) for s in specs] for specs in runs.values()}
     plots.error_vs_depth(labels, share, curves, out / "error_vs_depth.png")
@@ -119,7 +120,9 @@ def _depth_section(by_key, runs, ref_at, c: Config, out: Path) -> list[str]:
              "Mean radiance of Mitsuba's reference at each max_depth (the report's depth D = max_depth D + 2), as a "
              "share of the unbounded image; the first bar holds everything up to max_depth 2 (direct light):", "",
              "| max_depth | report depth | mean radiance | share of unbounded |", "|---:|---:|---:|---:|"]
-    lines += [f"| {d} | {d - 2 if d > 0 else '-'} | {means[d]:.4f} | {means[d] / means[-1]:.1%} |" for d in DEPTHS]
+    lines += [f"| {d} | {d - 2 if d > 0 else '-'} | {means[d]:.4f} | {means[d] / total:.1%} |" for d in DEPTHS]
+    if means[-1] == 0:
+        lines += ["", "Mitsuba's image is black at every depth: nothing to converge to, every RMSE is 0."]
     lines += ["", "RMSE, render time and the check's verdict per estimator and depth:", "",
               "| estimator | max_depth | spp | render s | RMSE | SSIM | test |", "|---|---:|---:|---:|---:|---:|---|"]
     for specs in runs.values():
