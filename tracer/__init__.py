@@ -7,6 +7,6 @@ __all__ = ["load_scene", "SceneError", "render"]
 
 def __getattr__(name):
     if name == "render":  # imports Dr.Jit lazily, so that loading a scene stays cheap
-        from .render import render
+        from .rendering import render
         return render
     raise AttributeError(name)

@@ -53,7 +53,7 @@ import numpy as np
 from .film import Film, ReconstructionFilter
 from .geometry import SceneGeometry
 from .jit import UInt32
-from .render import RenderResult, path_samples, seed_state, timed, trace_pass
+from .rendering import RenderResult, path_samples, seed_state, timed, trace_pass
 from .scene import Scene
 
 CRITERIA = ("stddev", "relative", "variance")

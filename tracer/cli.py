@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _render(scene, args) -> int:
-    from .render import render
+    from .rendering import render
 
     if args.output.suffix.lower() != ".exr":
         raise SceneError(f"--output {args.output}: the output must be an .exr file")

@@ -8,7 +8,7 @@ import numpy as np
 from tqdm import tqdm
 
 import tracer
-from tracer.render import render
+from tracer.rendering import render
 
 from .faults import FAULTS, Fault
 from .mitsuba_render import render_passes

@@ -20,7 +20,7 @@ import numpy as np
 from tqdm import tqdm
 
 import tracer
-from tracer.render import render
+from tracer.rendering import render
 
 from .metrics import agreement, measure
 from .mitsuba_render import mitsuba
