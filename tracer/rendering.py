@@ -1,25 +1,31 @@
-"""Rendering a scene with either estimator, in chunks that bound memory, into a NumPy image."""
+"""Rendering a scene with either estimator, planned before its first ray (tracer.plan), in passes and
+chunks that bound memory, into a NumPy image."""
 from __future__ import annotations
 
+import numbers
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import drjit as dr
 import numpy as np
 from tqdm import tqdm
 
 from .camera import primary_rays
-from .film import Film, ReconstructionFilter
+from .errors import SettingsError
+from .film import FILTERS, Film, ReconstructionFilter
 from .geometry import SceneGeometry
 from .integrators.path import path_radiance
 from .integrators.report import ReportSettings, Wavefront, trace_level
-from .jit import BACKEND, NO_PRIM, Array3f, Bool, Float, UInt32, opaque_u32
+from .jit import BACKEND, NO_PRIM, PRECISION, Array3f, Bool, Float, UInt32, opaque_u32
+from .plan import PATH_CHUNK, Plan, plan_render
 from .sampling import seeded_rng
 from .scene import Scene
 
 ESTIMATORS = ("path", "report")
-PATH_CHUNK = 1 << 21       # samples per path-tracing launch
-REPORT_BUDGET = 1 << 23    # worst-case rays per report-estimator level
+HEMISPHERES = ("cosine", "uniform")
+PASS_STREAM = 0x9A55_0000_0000     # random streams of passes after the first: (seed, PASS_STREAM, pass)
+MAX_SEED = 2**32                   # seeds are 32-bit, as Mitsuba's sampler's
 
 
 class Timed:
@@ -44,39 +50,136 @@ class RenderResult(Timed):
     rays: int = 0                     # closest-hit and shadow rays traced
     backend: str = BACKEND
     settings: dict = field(default_factory=dict)
+    seed: int = 0
 
     @property
     def rays_per_second(self) -> float:
         return self.rays / self.render_seconds if self.render_seconds > 0 else 0.0
 
 
-def render(scene: Scene, estimator: str = "path", spp: int | None = None, seed: int | None = None,
-           max_depth: int | None = None, direct: int = 16, indirect: int = 8, hemisphere: str = "cosine",
-           rfilter: ReconstructionFilter | None = None, progress: bool = False) -> RenderResult:
-    """Renders `scene`; unset arguments take the scene file's values (spp, seed, max_depth, rfilter)."""
-    if estimator not in ESTIMATORS:
-        raise ValueError(f"unknown estimator '{estimator}'; choose one of {', '.join(ESTIMATORS)}")
-    spp = scene.spp if spp is None else spp
-    seed = scene.seed if seed is None else seed
-    max_depth = scene.max_depth if max_depth is None else max_depth
-    if spp < 1:
-        raise ValueError(f"spp must be >= 1, got {spp}")
-    if max_depth < -1:
-        raise ValueError(f"max_depth must be -1 (unbounded) or >= 0, got {max_depth}")
-    geo = SceneGeometry(scene)
+def render(scene: Scene | str | Path, estimator: str = "path", spp: int | None = None, seed: int | None = None,
+           max_depth: int | None = None, direct: int | None = None, indirect: int | None = None,
+           hemisphere: str | None = None, rfilter: ReconstructionFilter | str | None = None,
+           progress: bool = False, time_limit: float | None = None) -> RenderResult:
+    """Renders `scene` (a Scene, or the path of a scene file, loaded with its defaults).
+
+    Unset arguments take the scene file's values (spp, seed, max_depth, rfilter); `direct`, `indirect`
+    and `hemisphere` are the report estimator's N, M and eq. 11's sampling (defaults 16, 8, "cosine").
+    `rfilter` is a ReconstructionFilter or the name of one with Mitsuba's defaults. `time_limit`
+    (seconds) renders one sample per pixel per pass and stops after the last whole pass that fits:
+    `result.spp` says how many were rendered. Arguments out of their domain raise SettingsError and a
+    render that cannot fit in memory PlanError, both before the first ray."""
+    if isinstance(scene, (str, Path)):
+        from .mitsuba_xml import load_scene
+        scene = load_scene(scene)
+    if not isinstance(scene, Scene):
+        raise SettingsError(f"scene must be a Scene (tracer.load_scene) or a scene file's path, "
+                            f"got {type(scene).__name__}")
+    estimator, spp, seed, max_depth = check_settings(scene, estimator, spp, seed, max_depth)
+    report = report_settings(estimator, max_depth, direct, indirect, hemisphere)
+    rfilter = check_rfilter(scene.camera.rfilter if rfilter is None else rfilter)
+    if time_limit is not None and (isinstance(time_limit, bool) or not isinstance(time_limit, numbers.Real)
+                                   or not time_limit > 0):
+        raise SettingsError(f"time_limit must be a positive number of seconds, got {time_limit!r}")
     cam = scene.camera
-    film = Film(cam.width, cam.height, cam.rfilter if rfilter is None else rfilter)
-    if estimator == "report":
-        if max_depth < 0:
-            raise ValueError("the report estimator branches at every bounce: it needs a finite max_depth")
-        report = ReportSettings(direct, indirect, hemisphere)
-        run = lambda: _render_report(geo, scene, film, spp, seed, max_depth, report, progress)  # noqa: E731
-        settings = {"direct": direct, "indirect": indirect, "hemisphere": hemisphere, "report_depth": max_depth - 2}
+    film = Film(cam.width, cam.height, rfilter)
+    plan = make_plan(cam.width, cam.height, spp, estimator, max_depth, film.border, report,
+                     one_spp_passes=time_limit is not None)
+    geo = SceneGeometry(scene)
+    if report is not None:
+        run = lambda: _render_report(geo, scene, film, plan, seed, max_depth, report, progress,  # noqa: E731
+                                     time_limit)
+        settings = {"direct": report.direct, "indirect": report.indirect, "hemisphere": report.hemisphere,
+                    "report_depth": max_depth - 2}
     else:
-        run = lambda: _render_path(geo, scene, film, spp, seed, max_depth, progress)  # noqa: E731
+        run = lambda: _render_path(geo, scene, film, plan, seed, max_depth, progress, time_limit)  # noqa: E731
         settings = {}
-    (rays, pixels), seconds, compile_s = timed(lambda: (run(), film.develop()))
-    return RenderResult(pixels, estimator, spp, max_depth, seconds, compile_s, rays, settings=settings)
+    ((rays, rendered), pixels), seconds, compile_s = timed(lambda: (run(), film.develop()))
+    settings.update(passes=len(rendered), requested_spp=spp)
+    return RenderResult(pixels, estimator, sum(rendered), max_depth, seconds, compile_s, rays, settings=settings,
+                        seed=seed)
+
+
+def _integer(name: str, value) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise SettingsError(f"{name} must be an integer, got {value!r}")
+    return int(value)
+
+
+def check_settings(scene: Scene, estimator: str, spp, seed, max_depth) -> tuple[str, int, int, int]:
+    """(estimator, spp, seed, max_depth), unset ones from the scene, each checked: SettingsError names the
+    parameter, its value and its domain."""
+    if estimator not in ESTIMATORS:
+        raise SettingsError(f"unknown estimator {estimator!r}; choose one of {', '.join(ESTIMATORS)}")
+    spp = _integer("spp", scene.spp if spp is None else spp)
+    seed = _integer("seed", scene.seed if seed is None else seed)
+    max_depth = _integer("max_depth", scene.max_depth if max_depth is None else max_depth)
+    if spp < 1:
+        raise SettingsError(f"spp must be >= 1, got {spp}")
+    if not 0 <= seed < MAX_SEED:
+        raise SettingsError(f"seed must be in [0, 2^32), got {seed}")
+    if max_depth < -1:
+        raise SettingsError(f"max_depth must be -1 (unbounded) or >= 0, got {max_depth}")
+    return estimator, spp, seed, max_depth
+
+
+def report_settings(estimator: str, max_depth: int, direct, indirect, hemisphere) -> ReportSettings | None:
+    """The report estimator's settings (None for the path estimator, which refuses them)."""
+    given = {k: v for k, v in (("direct", direct), ("indirect", indirect), ("hemisphere", hemisphere)) if v is not None}
+    if estimator != "report":
+        if given:
+            raise SettingsError(f"{', '.join(given)}: the report estimator's settings; estimator='path' "
+                                f"does not use them")
+        return None
+    if max_depth < 0:
+        raise SettingsError("the report estimator branches at every bounce: it needs max_depth >= 0 "
+                            "(report depth D is max_depth D + 2), not -1 (unbounded)")
+    direct, indirect = _integer("direct", 16 if direct is None else direct), _integer("indirect", 8 if indirect is None else indirect)
+    if direct < 1 or indirect < 1:
+        raise SettingsError(f"direct (N) and indirect (M) must be >= 1, got N = {direct}, M = {indirect}")
+    hemisphere = "cosine" if hemisphere is None else hemisphere
+    if hemisphere not in HEMISPHERES:
+        raise SettingsError(f"hemisphere must be one of {', '.join(HEMISPHERES)}, got {hemisphere!r}")
+    return ReportSettings(direct, indirect, hemisphere)
+
+
+def check_rfilter(rfilter) -> ReconstructionFilter:
+    """A ReconstructionFilter, or the name of one (Mitsuba's defaults: gaussian stddev 0.5, tent radius 1)."""
+    if isinstance(rfilter, str) and rfilter in FILTERS:
+        return ReconstructionFilter(rfilter)
+    if not isinstance(rfilter, ReconstructionFilter):
+        raise SettingsError(f"rfilter must be a ReconstructionFilter or one of {', '.join(FILTERS)}, got {rfilter!r}")
+    return rfilter
+
+
+def make_plan(width: int, height: int, spp: int, estimator: str, max_depth: int, border: int,
+              report: ReportSettings | None, one_spp_passes: bool = False, images: int = 2) -> Plan:
+    """tracer.plan's plan for this backend's precision and the estimator's tree."""
+    extra = {} if report is None else {"slots": report.slots, "direct": report.direct}
+    return plan_render(width, height, spp, estimator, max_depth, border=border,
+                       float_bytes=8 if PRECISION == "double" else 4, images=images,
+                       max_pass_samples=width * height if one_spp_passes else None, **extra)
+
+
+def pass_seed(seed: int, index: int) -> int:
+    """The seed of pass `index`: the render's own for the first (a one-pass render is what it always
+    was), then independent streams."""
+    return seed if index == 0 else seed_state(seed, PASS_STREAM, index)
+
+
+def run_passes(passes: list[int], time_limit: float | None, render_pass) -> list[int]:
+    """Calls render_pass(index, spp) for each pass; with `time_limit` (seconds), stops before a pass that
+    would end after it if it took as long as the last one. The first pass is always rendered. Returns the
+    spp of the passes rendered."""
+    start, done, last = time.perf_counter(), [], 0.0
+    for index, spp in enumerate(passes):
+        began = time.perf_counter()
+        if time_limit is not None and done and began - start + last > time_limit:
+            break
+        render_pass(index, spp)
+        last = time.perf_counter() - began
+        done.append(spp)
+    return done
 
 
 def timed(run):
@@ -141,15 +244,31 @@ def trace_pass(film: Film, sampler, total: int, pixel_of, state: int, progress: 
     return rays
 
 
-def _render_path(geo, scene, film, spp, seed, max_depth, progress) -> int:
+def _render_path(geo, scene, film, plan, seed, max_depth, progress, time_limit) -> tuple[int, list[int]]:
     sampler = lambda sample, pixel, state: path_samples(geo, scene, sample, pixel, state, max_depth)  # noqa: E731
-    return trace_pass(film, sampler, film.width * film.height * spp, lambda sample: sample // spp,
-                      seed_state(seed), progress, "path")
+    rays = 0
+
+    def one_pass(index, spp):
+        nonlocal rays
+        rays += trace_pass(film, sampler, film.width * film.height * spp, lambda sample: sample // spp,
+                           seed_state(pass_seed(seed, index)), progress, "path")
+
+    done = run_passes(plan.passes, time_limit, one_pass)
+    return rays, done
 
 
-def _render_report(geo, scene, film, spp, seed, max_depth, settings, progress) -> int:
-    widest = settings.slots ** max(max_depth - 2, 0) * settings.direct
-    chunk = max(1, REPORT_BUDGET // widest)
+def _render_report(geo, scene, film, plan, seed, max_depth, settings, progress, time_limit) -> tuple[int, list[int]]:
+    rays = 0
+
+    def one_pass(index, spp):
+        nonlocal rays
+        rays += _report_pass(geo, scene, film, spp, pass_seed(seed, index), max_depth, settings, plan.chunk, progress)
+
+    done = run_passes(plan.passes, time_limit, one_pass)
+    return rays, done
+
+
+def _report_pass(geo, scene, film, spp, seed, max_depth, settings, chunk, progress) -> int:
     rays = 0
     for index, (start, n) in enumerate(chunks(scene.camera.width * scene.camera.height * spp, chunk,
                                                progress, "report")):
