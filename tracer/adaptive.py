@@ -77,7 +77,8 @@ def render_adaptive(scene: Scene, spp: int | None = None, seed: int | None = Non
     (height, width) number of samples each pixel received (pilot included)."""
     _, spp, seed, max_depth = check_settings(scene, "path", spp, seed, max_depth)
     if pilot_spp is None and spp < 3:
-        raise SettingsError(f"adaptive sampling needs at least 3 samples per pixel (a pilot of 2, then more), got {spp}")
+        raise SettingsError(f"adaptive sampling needs at least 3 samples per pixel (a pilot of 2, then more), "
+                            f"got {spp}")
     pilot_spp = default_pilot(spp) if pilot_spp is None else pilot_spp
     rfilter = check_rfilter(scene.camera.rfilter if rfilter is None else rfilter)
     if rfilter.kind != "box":

@@ -2,7 +2,7 @@
 
 Every render is checked before its first ray: the options, the output paths (a probe file in each
 folder), the plan (tracer.plan: passes, memory). Errors a user can act on (tracer.errors.UserError, the
-loader's SceneError, OSError) print one line and return 1; anything else is a bug in the tracer and
+loader's SceneError, OSError, MemoryError) print one line and return 1; anything else is a bug in the tracer and
 prints its traceback, a line saying so, and returns 70. Parsing the command line imports nothing of
 Dr.Jit, so that `--help` and `--version` work whatever the machine's LLVM.
 """
@@ -57,7 +57,8 @@ def _parser() -> argparse.ArgumentParser:
     depth = r.add_mutually_exclusive_group()
     depth.add_argument("--max-depth", type=int, help="Mitsuba's max_depth; default: the scene's integrator")
     depth.add_argument("--report-depth", type=int, help="the report's depth D >= 0 (= max_depth D + 2)")
-    r.add_argument("--direct", "-N", type=int, help="report estimator: shadow rays per diffuse hit (eq. 10; default 16)")
+    r.add_argument("--direct", "-N", type=int,
+                   help="report estimator: shadow rays per diffuse hit (eq. 10; default 16)")
     r.add_argument("--indirect", "-M", type=int, help="report estimator: hemisphere rays per diffuse hit (eq. 11; "
                    "default 8)")
     r.add_argument("--hemisphere", choices=("cosine", "uniform"),
@@ -102,7 +103,8 @@ def _is_user_error(e: BaseException) -> bool:
     """The loader's errors are users' too; they are looked up only if the loader was imported at all."""
     scene = sys.modules.get("tracer.scene")
     denoise = sys.modules.get("tracer.denoise")
-    kinds = (UserError, OSError) + ((scene.SceneError,) if scene else ()) + ((denoise.DenoiseError,) if denoise else ())
+    kinds = (UserError, OSError, MemoryError) + ((scene.SceneError,) if scene else ()) \
+        + ((denoise.DenoiseError,) if denoise else ())
     return isinstance(e, kinds)
 
 
@@ -116,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except Exception as e:
         if _is_user_error(e):
-            print(f"tracer: error: {e}", file=sys.stderr)
+            print(f"tracer: error: {e if str(e) else type(e).__name__}", file=sys.stderr)
             return 1
         traceback.print_exc()
         print(f"tracer: internal error: the {type(e).__name__} above is a bug in the tracer, not a problem with "

@@ -119,7 +119,8 @@ def read_exr(path: str | Path) -> np.ndarray:
 
 
 def write_png(path: str | Path, image: np.ndarray, metadata: dict[str, str] | None = None) -> None:
-    """sRGB, 8 bits per channel, `metadata` as text chunks; encoded band by band (PNG_ROWS) to bound the encoding's memory."""
+    """sRGB, 8 bits per channel, `metadata` as text chunks; encoded band by band (PNG_ROWS) to bound the
+    encoding's memory."""
     check_image(image, str(path))
     pixels = np.empty(image.shape, dtype=np.uint8)
     for top in range(0, image.shape[0], PNG_ROWS):

@@ -134,7 +134,8 @@ def report_settings(estimator: str, max_depth: int, direct, indirect, hemisphere
     if max_depth < 0:
         raise SettingsError("the report estimator branches at every bounce: it needs max_depth >= 0 "
                             "(report depth D is max_depth D + 2), not -1 (unbounded)")
-    direct, indirect = _integer("direct", 16 if direct is None else direct), _integer("indirect", 8 if indirect is None else indirect)
+    direct = _integer("direct", 16 if direct is None else direct)
+    indirect = _integer("indirect", 8 if indirect is None else indirect)
     if direct < 1 or indirect < 1:
         raise SettingsError(f"direct (N) and indirect (M) must be >= 1, got N = {direct}, M = {indirect}")
     hemisphere = "cosine" if hemisphere is None else hemisphere
@@ -169,8 +170,9 @@ def pass_seed(seed: int, index: int) -> int:
 
 def run_passes(passes: list[int], time_limit: float | None, render_pass) -> list[int]:
     """Calls render_pass(index, spp) for each pass; with `time_limit` (seconds), stops before a pass that
-    would end after it if it took as long as the last one. The first pass is always rendered. Returns the
-    spp of the passes rendered."""
+    would end after it if it took as long as the last one (the first pass, which also compiles the kernels,
+    is always rendered, and may make the second look longer than it is). Returns the spp of the passes
+    rendered."""
     start, done, last = time.perf_counter(), [], 0.0
     for index, spp in enumerate(passes):
         began = time.perf_counter()
