@@ -83,14 +83,18 @@ def test_a_filter_by_name_is_mitsubas_default_of_that_kind(scene):
 
 def test_more_samples_than_a_pass_holds_render_in_passes(scene, monkeypatch):
     """Any spp works: passes of at most MAX_PASS_SAMPLES samples, each with its own random streams. Here a
-    pass holds 3 spp of the 48 pixels, so 7 spp take passes of 3, 3 and 1."""
+    pass holds 3 spp of the 48 pixels: 7 spp take passes of 3, 3 and 1, and 6 spp two passes of 3, which
+    would develop to the 3 spp image (up to float rounding) if the second pass repeated the first one's
+    streams."""
     one_pass = tracer.render(scene, spp=7, seed=5)
+    first = tracer.render(scene, spp=3, seed=5)
     monkeypatch.setattr(plan, "MAX_PASS_SAMPLES", 48 * 3)
     passes = tracer.render(scene, spp=7, seed=5)
-    first = tracer.render(scene, spp=3, seed=5)
+    two = tracer.render(scene, spp=6, seed=5)
     assert (passes.spp, passes.settings["passes"], one_pass.settings["passes"]) == (7, 3, 1)
+    assert (two.spp, two.settings["passes"]) == (6, 2)
     assert not np.array_equal(passes.image, one_pass.image)   # other streams after the first pass
-    assert not np.array_equal(passes.image, first.image)      # the later passes were added
+    assert np.abs(two.image - first.image).max() > 1e-3     # the second pass has streams of its own
     assert passes.rays > 2 * first.rays
 
 
@@ -110,3 +114,24 @@ def test_the_readme_example_matches_the_clis_defaults(monkeypatch):
     monkeypatch.chdir(ROOT)
     exec(small, namespace)
     assert namespace["result"].image.shape == (10, 10, 3) and namespace["result"].spp == 1
+
+
+def test_time_limit_stops_before_a_pass_that_would_end_after_it(monkeypatch):
+    """With a clock where every pass takes 1 s: a limit of 3.5 s renders 3 passes (the 4th would end at
+    4 s); without a limit, all of them."""
+    import tracer.rendering as rendering
+
+    clock = [0.0]
+    monkeypatch.setattr(rendering.time, "perf_counter", lambda: clock[0])
+
+    def one_second(index, spp):
+        clock[0] += 1.0
+
+    assert rendering.run_passes([1] * 10, 3.5, one_second) == [1, 1, 1]
+    assert rendering.run_passes([1] * 10, 0.1, one_second) == [1]          # the first pass always runs
+    assert rendering.run_passes([2, 2, 1], None, one_second) == [2, 2, 1]
+
+
+def test_a_time_limit_not_reached_renders_every_sample(scene):
+    result = tracer.render(scene, spp=3, time_limit=1e6)
+    assert (result.spp, result.settings["passes"]) == (3, 3)
