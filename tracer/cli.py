@@ -183,11 +183,8 @@ def _render(args) -> int:
     if args.adaptive and args.time_limit is not None:
         raise SettingsError("--time-limit works without --adaptive (whose passes are planned from the pilot)")
     width, height = _size(args)
-    if args.output:
-        from .imageio import writer
-        for path in args.output:
-            writer(path)
 
+    from .film import Film
     from .mitsuba_xml import load_scene
     from .rendering import check_rfilter, check_settings, make_plan, render, report_settings
 
@@ -200,8 +197,7 @@ def _render(args) -> int:
     rfilter = check_rfilter(args.filter if args.filter else scene.camera.rfilter)
     estimator, spp, seed, max_depth = check_settings(scene, args.estimator, spp, args.seed, max_depth)
     report = report_settings(estimator, max_depth, args.direct, args.indirect, args.hemisphere)
-    from .film import Film  # the plan with every image the outputs hold: AOVs, the noisy image
-    cam = scene.camera
+    cam = scene.camera  # the plan counts every image the outputs hold: the AOVs, the noisy image, OIDN's copies
     plan = make_plan(cam.width, cam.height, spp, estimator, max_depth, Film.border_of(rfilter), report,
                      args.time_limit is not None, images=2 + 2 * (args.aovs or args.denoise) + 3 * args.denoise)
     paths = output_paths(args.scene, args.output, args.no_png)
