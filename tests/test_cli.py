@@ -203,12 +203,22 @@ def test_help_and_version_do_not_import_drjit():
 RENDER = "from tracer import cli; raise SystemExit(cli.main(['render', {!r}, '--size', '4x4', '-o', {!r}]))"
 
 
-@pytest.mark.skipif(not Path("/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1").exists(), reason="needs LLVM 15")
-def test_a_too_old_llvm_is_one_line_with_the_fix(tmp_path):
-    run = _python(RENDER.format(str(ROOM), str(tmp_path / "r.exr")),
-                  DRJIT_LIBLLVM_PATH="/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1")
+LIB = Path("/usr/lib/x86_64-linux-gnu")
+
+
+@pytest.mark.parametrize("library, says", [
+    ("libLLVM-15.so.1", "Dr.Jit found LLVM 15"),
+    ("libLLVM-14.so.1", "Dr.Jit's LLVM backend is unavailable"),
+    ("no-such-libLLVM.so", "Dr.Jit's LLVM backend is unavailable"),
+])
+def test_a_missing_or_too_old_llvm_is_one_line_with_the_fix(tmp_path, library, says):
+    if library.startswith("libLLVM") and not (LIB / library).exists():
+        pytest.skip(f"needs {LIB / library}")
+    run = _python(RENDER.format(str(ROOM), str(tmp_path / "r.exr")), DRJIT_LIBLLVM_PATH=str(LIB / library))
     assert run.returncode == 1
-    assert run.stderr.count("\n") == 1 and "LLVM 15" in run.stderr and "libllvm19" in run.stderr, run.stderr
+    assert run.stderr.startswith(f"tracer: error: {says}") and run.stderr.count("\n") == 1, run.stderr
+    assert "libllvm19" in run.stderr and "DRJIT_LIBLLVM_PATH" in run.stderr
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_cuda_without_a_gpu_is_one_line(tmp_path):

@@ -13,6 +13,7 @@ import dataclasses
 import os
 import re
 import sys
+import tempfile
 import time
 import traceback
 from importlib import metadata
@@ -127,13 +128,31 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _use_backend(backend: str | None) -> None:
-    """--backend as TRACER_BACKEND, which tracer.jit reads when it is first imported."""
-    if backend is None:
-        return
+    """--backend as TRACER_BACKEND, then Dr.Jit and its backend (tracer.jit). Dr.Jit prints its own
+    diagnostics when it finds no usable LLVM; they are caught here and joined to the one-line error."""
     jit = sys.modules.get("tracer.jit")
-    if jit is not None and jit.BACKEND != backend:
+    if backend is not None and jit is not None and jit.BACKEND != backend:
         raise BackendError(f"--backend {backend}: this process already renders with {jit.BACKEND}")
-    os.environ["TRACER_BACKEND"] = backend
+    if backend is not None:
+        os.environ["TRACER_BACKEND"] = backend
+    if jit is not None:
+        return
+    with tempfile.TemporaryFile() as log:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        os.dup2(log.fileno(), 2)
+        try:
+            import tracer.jit  # noqa: F401
+        except BackendError as e:
+            os.dup2(saved, 2)
+            log.seek(0)
+            said = " ".join(line.strip() for line in log.read().decode(errors="replace").splitlines() if line.strip())
+            raise BackendError(f"{e}{f' (Dr.Jit: {said})' if said else ''}") from None
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        log.seek(0)
+        sys.stderr.write(log.read().decode(errors="replace"))  # anything Dr.Jit said on success
 
 
 def _size(args) -> tuple[int | None, int | None]:
