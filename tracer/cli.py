@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib
 import os
 import re
 import sys
@@ -142,7 +143,7 @@ def _use_backend(backend: str | None) -> None:
         saved = os.dup(2)
         os.dup2(log.fileno(), 2)
         try:
-            import tracer.jit  # noqa: F401
+            importlib.import_module("tracer.jit")
         except BackendError as e:
             os.dup2(saved, 2)
             log.seek(0)
