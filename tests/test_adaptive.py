@@ -14,7 +14,7 @@ from tracer.adaptive import adaptive_passes, allocate, neighbour_mean, render_ad
 from tracer.film import Film
 from tracer.imageio import read_exr
 from tracer.jit import Array3f, Float, UInt32
-from tracer.render import render
+from tracer.rendering import render
 from tracer.sampling import seeded_rng
 from validation.metrics import agreement
 from validation.references import reference

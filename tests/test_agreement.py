@@ -57,16 +57,16 @@ def test_mesh_light_smooth_normals_twosided_agree_with_mitsuba(estimator):
 
 def test_disagrees_on_a_deliberately_wrong_image(monkeypatch):
     """The tracer's path estimator with its image 5% too bright."""
-    import tracer.render
+    import tracer.rendering
 
-    correct = tracer.render.render
+    correct = tracer.rendering.render
 
     def too_bright(*args, **kwargs):
         result = correct(*args, **kwargs)
         result.image *= 1.05
         return result
 
-    monkeypatch.setattr(tracer.render, "render", too_bright)
+    monkeypatch.setattr(tracer.rendering, "render", too_bright)
     result = verdict(SCENES / "hexagon_room.xml", TracerRenderer("path"), 3)
     assert result.verdict == "disagree", result.line()
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from validation import cli
-from validation.check import Settings, exit_code, write_json, write_junit
+from validation.check import exit_code, write_json, write_junit
 from validation.scenefile import ScenePlanError, plan
 from validation.stats import compare, grubbs_critical
 

@@ -9,7 +9,7 @@ from tracer import cli
 from tracer.aov import render_aovs
 from tracer.denoise import DenoiseError, denoise
 from tracer.imageio import read_exr
-from tracer.render import render
+from tracer.rendering import render
 
 SCENES = Path(__file__).resolve().parents[1] / "mitsuba_scenes"
 

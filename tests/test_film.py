@@ -111,7 +111,7 @@ def _variant(tmp_path, rfilter_xml):
 
 def _both(scene_file, rfilter=None):
     import tracer
-    from tracer.render import render
+    from tracer.rendering import render
     from validation.mitsuba_render import render_passes
 
     scene = tracer.load_scene(scene_file, width=SIZE, height=SIZE)

@@ -33,7 +33,7 @@ def test_black_check_fails_when_the_light_is_inside():
     case = stability.Case("edge-on, camera moved", "lights", "stress/edge_on.xml", "black")
     scene = tracer.load_scene(case.path, width=8, height=8)
     scene.camera.to_world[2, 3] = 1.0   # lift the camera out of the light's plane
-    from tracer.render import render
+    from tracer.rendering import render
     assert render(scene, "path", spp=4, seed=0).image.max() > 0
 
 
@@ -92,12 +92,12 @@ def test_double_precision_mode_renders_the_same_image(tmp_path):
 
     import numpy as np
 
-    from tracer.render import render
+    from tracer.rendering import render
 
     code = ("import sys, numpy as np, tracer, tracer.jit as j\n"
             "assert j.Float.__name__ == 'Float64', j.Float\n"
             f"s = tracer.load_scene({str(stability.SCENES / 'hexagon_room.xml')!r}, width=16, height=16)\n"
-            "from tracer.render import render\n"
+            "from tracer.rendering import render\n"
             f"np.save({str(tmp_path / 'd.npy')!r}, render(s, 'path', spp=16, seed=3, max_depth=3).image)\n")
     env = {**os.environ, "TRACER_PRECISION": "double", "PYTHONPATH": str(stability.ROOT)}
     subprocess.run([sys.executable, "-c", code], env=env, check=True)

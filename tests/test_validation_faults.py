@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import tracer
-from tracer.render import render
+from tracer.rendering import render
 from validation.check import Settings, check
 from validation.faults import FAULTS
 from validation.power import REPORT

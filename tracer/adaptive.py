@@ -50,10 +50,11 @@ from __future__ import annotations
 import drjit as dr
 import numpy as np
 
+from .errors import PlanError, SettingsError
 from .film import Film, ReconstructionFilter
 from .geometry import SceneGeometry
 from .jit import UInt32
-from .render import RenderResult, path_samples, seed_state, timed, trace_pass
+from .rendering import RenderResult, check_rfilter, check_settings, path_samples, seed_state, timed, trace_pass
 from .scene import Scene
 
 CRITERIA = ("stddev", "relative", "variance")
@@ -74,17 +75,14 @@ def render_adaptive(scene: Scene, spp: int | None = None, seed: int | None = Non
 
     `result.settings` holds "adaptive": True, "pilot_spp", "criterion" and "samples", the
     (height, width) number of samples each pixel received (pilot included)."""
-    spp = scene.spp if spp is None else spp
-    seed = scene.seed if seed is None else seed
-    max_depth = scene.max_depth if max_depth is None else max_depth
+    _, spp, seed, max_depth = check_settings(scene, "path", spp, seed, max_depth)
     if pilot_spp is None and spp < 3:
-        raise ValueError(f"adaptive sampling needs at least 3 samples per pixel (a pilot of 2, then more), got {spp}")
+        raise SettingsError(f"adaptive sampling needs at least 3 samples per pixel (a pilot of 2, then more), "
+                            f"got {spp}")
     pilot_spp = default_pilot(spp) if pilot_spp is None else pilot_spp
-    rfilter = scene.camera.rfilter if rfilter is None else rfilter
+    rfilter = check_rfilter(scene.camera.rfilter if rfilter is None else rfilter)
     if rfilter.kind != "box":
-        raise ValueError(f"adaptive sampling needs the box filter, not {rfilter.describe()} (--filter box)")
-    if max_depth < -1:
-        raise ValueError(f"max_depth must be -1 (unbounded) or >= 0, got {max_depth}")
+        raise SettingsError(f"adaptive sampling needs the box filter, not {rfilter.describe()} (--filter box)")
     geo = SceneGeometry(scene)
 
     def sampler(sample, pixel, seed_state):
@@ -105,15 +103,15 @@ def adaptive_passes(film: Film, sampler, spp: int, pilot_spp: int, seed: int, cr
     returns (x, y, L, rays) per lane, as render.path_samples. Returns the rays traced and each pixel's
     total sample count (pilot included), flattened."""
     if criterion not in CRITERIA:
-        raise ValueError(f"unknown adaptive criterion '{criterion}'; choose one of {', '.join(CRITERIA)}")
+        raise SettingsError(f"unknown adaptive criterion '{criterion}'; choose one of {', '.join(CRITERIA)}")
     if pilot_spp < 2:
-        raise ValueError(f"the pilot needs at least 2 samples per pixel to estimate a variance, got {pilot_spp}")
+        raise SettingsError(f"the pilot needs at least 2 samples per pixel to estimate a variance, got {pilot_spp}")
     if spp <= pilot_spp:
-        raise ValueError(f"adaptive sampling needs more samples per pixel ({spp}) than its pilot ({pilot_spp})")
+        raise SettingsError(f"adaptive sampling needs more samples per pixel ({spp}) than its pilot ({pilot_spp})")
     w, h = film.width, film.height
     pixels = w * h
     if spp * pixels >= 2**32:
-        raise ValueError(f"{spp} spp at {w} x {h} is more than 2^32 samples")
+        raise PlanError(f"{spp} spp at {w} x {h} is more than 2^32 samples, adaptive sampling's most")
     squares = Film(w, h, film.rfilter)
 
     # 1. Pilot: pilot_spp samples per pixel, sums and sums of squares.

@@ -17,6 +17,7 @@ import numpy as np
 from .jit import Array3f, Bool, Float, Int32, UInt32
 
 FILTERS = ("box", "gaussian", "tent")
+DEVELOP_PIXELS = 1 << 15   # pixels developed at once (whole rows, at least one)
 
 
 @dataclass(frozen=True)
@@ -51,9 +52,14 @@ class Film:
 
     def __init__(self, width: int, height: int, rfilter: ReconstructionFilter = ReconstructionFilter()):
         self.width, self.height, self.rfilter = width, height, rfilter
-        self.border = max(0, math.ceil(rfilter.radius - 0.5)) if rfilter.kind != "box" else 0
+        self.border = self.border_of(rfilter)
         self.size = (width + 2 * self.border, height + 2 * self.border)
         self.data = dr.zeros(Float, self.size[0] * self.size[1] * 4)
+
+    @staticmethod
+    def border_of(rfilter: ReconstructionFilter) -> int:
+        """Pixels of border on each side: the filter's reach beyond the image's edge pixels."""
+        return max(0, math.ceil(rfilter.radius - 0.5)) if rfilter.kind != "box" else 0
 
     def put(self, x: Float, y: Float, value: Array3f, active: Bool | bool = True) -> None:
         """Adds samples at film positions (x, y) in pixels (0 .. width, 0 .. height)."""
@@ -87,12 +93,24 @@ class Film:
         return self._crop()[..., 3]
 
     def develop(self) -> np.ndarray:
-        """(height, width, 3) float32: each pixel's weighted sum divided by its weight (0 where none)."""
-        block = self._crop()
-        w = block[..., 3:]
-        return (block[..., :3] / np.where(w == 0, 1.0, w)).astype(np.float32)
+        """(height, width, 3) float32: each pixel's weighted sum divided by its weight (0 where none).
+        Band by band: beyond the film itself, only the image and one band's float64 copies are held
+        (tracer.plan.DEVELOP_MULTIPLE)."""
+        image = np.empty((self.height, self.width, 3), dtype=np.float32)
+        full = self._full()
+        b = self.border
+        rows = max(1, DEVELOP_PIXELS // self.width)
+        for top in range(0, self.height, rows):
+            bottom = min(top + rows, self.height)
+            block = full[b + top:b + bottom, b:b + self.width].astype(np.float64)
+            w = block[..., 3:]
+            image[top:bottom] = block[..., :3] / np.where(w == 0, 1.0, w)
+        return image
+
+    def _full(self) -> np.ndarray:
+        """The bordered film, (rows, columns, 4) (a view of the Dr.Jit array on the CPU)."""
+        return self.data.numpy().reshape(self.size[1], self.size[0], 4)
 
     def _crop(self) -> np.ndarray:
         b = self.border
-        full = self.data.numpy().reshape(self.size[1], self.size[0], 4)
-        return full[b:b + self.height, b:b + self.width].astype(np.float64)
+        return self._full()[b:b + self.height, b:b + self.width].astype(np.float64)

@@ -1,17 +1,30 @@
-"""Writing images: linear float32 RGB OpenEXR and sRGB PNG, each atomically (no partial file)."""
+"""Writing images: linear float32 RGB OpenEXR and sRGB PNG, chosen by the file's extension.
+
+Every file is written to a temporary beside its target and moved into place (os.replace): a failure
+leaves no partial file and the previous file intact. `Outputs` does so for a set of files, moving them
+only once all were written. Files are created with the mode the umask gives (0666 & ~umask), as any
+program's `open` would.
+"""
 from __future__ import annotations
 
 import os
-import tempfile
+import secrets
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
 from PIL import Image
+from PIL.PngImagePlugin import PngInfo
 
 
-class ImageError(ValueError):
-    pass
+from .errors import OutputError, UserError
+
+PNG_ROWS = 256  # rows encoded at once: the sRGB encoding holds a band's floats, not the image's
+
+
+class ImageError(UserError, ValueError):
+    """An image that cannot be written as asked (NaN, negative radiance, an unknown format)."""
 
 
 def srgb_encode(linear: np.ndarray) -> np.ndarray:
@@ -29,21 +42,48 @@ def check_image(image: np.ndarray, what: str = "image") -> None:
         raise ImageError(f"{what} holds {int((image < 0).any(axis=-1).sum())} pixels with negative radiance")
 
 
-def _atomic(path: Path, write) -> None:
+def _temporary(path: Path) -> Path:
+    """A new empty file beside `path`, created with the umask's mode (O_EXCL: never an existing one)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
-    os.close(fd)
+    for _ in range(100):
+        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp{path.suffix}")
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            return tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{path}: no free temporary name beside it")
+
+
+def _atomic(path: Path, write) -> None:
+    tmp = _temporary(path)
     try:
-        write(tmp)
+        write(str(tmp))
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
 
 
-def write_exr(path: str | Path, image: np.ndarray) -> None:
+def probe_writable(path: str | Path) -> None:
+    """Refuses, before any work, an output path whose folder cannot be created or written: a probe file
+    is created there and removed. The message names `path`."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(f"{path}: is a folder, not an image file")
+    folder = next(p for p in path.absolute().parents if p.exists())
+    if not folder.is_dir():
+        raise OutputError(f"{path}: cannot write into {path.parent}: {folder} is a file, not a folder")
+    try:
+        _temporary(path).unlink()
+    except OSError as e:
+        raise OutputError(f"{path}: cannot write into {path.parent}: {e.strerror or e}") from None
+
+
+def write_exr(path: str | Path, image: np.ndarray, metadata: dict[str, str] | None = None) -> None:
+    """Linear float32 RGB; `metadata` becomes string attributes of the header (the render's spp, seed)."""
     check_image(image, str(path))
-    _write_rgb_exr(Path(path), image)
+    _write_rgb_exr(Path(path), image, metadata)
 
 
 def write_normal_exr(path: str | Path, normal: np.ndarray) -> None:
@@ -53,15 +93,21 @@ def write_normal_exr(path: str | Path, normal: np.ndarray) -> None:
     _write_rgb_exr(Path(path), normal)
 
 
-def _write_rgb_exr(path: Path, image: np.ndarray) -> None:
+def _write_rgb_exr(path: Path, image: np.ndarray, metadata: dict[str, str] | None = None) -> None:
     rgb = np.ascontiguousarray(image, dtype=np.float32)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    header.update({key: str(value) for key, value in (metadata or {}).items()})
 
     def write(tmp):
         with OpenEXR.File(header, {"RGB": rgb}) as f:
             f.write(tmp)
 
     _atomic(path, write)
+
+
+def read_exr_header(path: str | Path) -> dict:
+    with OpenEXR.File(str(path)) as f:
+        return dict(f.header())
 
 
 def read_exr(path: str | Path) -> np.ndarray:
@@ -72,7 +118,58 @@ def read_exr(path: str | Path) -> np.ndarray:
         return np.stack([np.asarray(channels[c].pixels, np.float32) for c in "RGB"], axis=-1)
 
 
-def write_png(path: str | Path, image: np.ndarray) -> None:
+def write_png(path: str | Path, image: np.ndarray, metadata: dict[str, str] | None = None) -> None:
+    """sRGB, 8 bits per channel, `metadata` as text chunks; encoded band by band (PNG_ROWS) to bound the
+    encoding's memory."""
     check_image(image, str(path))
-    pixels = np.round(srgb_encode(image) * 255).astype(np.uint8)
-    _atomic(Path(path), lambda tmp: Image.fromarray(pixels, "RGB").save(tmp, format="PNG"))
+    pixels = np.empty(image.shape, dtype=np.uint8)
+    for top in range(0, image.shape[0], PNG_ROWS):
+        pixels[top:top + PNG_ROWS] = np.round(srgb_encode(image[top:top + PNG_ROWS]) * 255)
+    info = PngInfo()
+    for key, value in (metadata or {}).items():
+        info.add_text(key, str(value))
+    _atomic(Path(path), lambda tmp: Image.fromarray(pixels, "RGB").save(tmp, format="PNG", pnginfo=info))
+
+
+WRITERS: dict[str, Callable] = {".exr": write_exr, ".png": write_png}
+
+
+def writer(path: str | Path) -> Callable:
+    """The writer of `path`'s format, by its extension in any case; OutputError for another."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in WRITERS:
+        raise OutputError(f"{path}: unknown image format '{Path(path).suffix}'; the tracer writes "
+                          f"{' and '.join(WRITERS)} (linear OpenEXR, 8-bit sRGB PNG)")
+    return WRITERS[suffix]
+
+
+class Outputs:
+    """Files written together or not at all: `add` writes each to a temporary beside its target,
+    `commit` moves them all into place; `discard` (or a failed `add`) removes the temporaries, leaving
+    the previous files as they were. Use as a context manager: leaving it by an exception discards."""
+
+    def __init__(self):
+        self.staged: list[tuple[Path, Path]] = []
+
+    def add(self, path: str | Path, write: Callable[[str, np.ndarray], None], image: np.ndarray, **kw) -> None:
+        path = Path(path)
+        tmp = _temporary(path)
+        self.staged.append((tmp, path))
+        write(str(tmp), image, **kw)
+
+    def commit(self) -> list[Path]:
+        for tmp, path in self.staged:
+            os.replace(tmp, path)
+        done, self.staged = [path for _, path in self.staged], []
+        return done
+
+    def discard(self) -> None:
+        for tmp, _ in self.staged:
+            tmp.unlink(missing_ok=True)
+        self.staged = []
+
+    def __enter__(self) -> Outputs:
+        return self
+
+    def __exit__(self, kind, value, traceback) -> None:
+        self.discard()

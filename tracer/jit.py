@@ -7,17 +7,28 @@ import os
 
 import drjit as dr
 
+from .errors import BackendError
+
+
+LLVM_FIX = ("install an LLVM runtime >= 16 (Debian/Ubuntu: apt-get install libllvm19) or point "
+            "DRJIT_LIBLLVM_PATH at its libLLVM.so")
+
 
 def _pick_backend():
     wanted = os.environ.get("TRACER_BACKEND", "").lower()
     if wanted not in ("", "llvm", "cuda"):
-        raise RuntimeError(f"TRACER_BACKEND must be 'llvm' or 'cuda', got '{wanted}'")
+        raise BackendError(f"TRACER_BACKEND must be 'llvm' or 'cuda', got '{wanted}'")
+    if wanted == "cuda" and not dr.has_backend(dr.JitBackend.CUDA):
+        raise BackendError("TRACER_BACKEND=cuda (--backend cuda): Dr.Jit finds no CUDA GPU or driver on this "
+                           "machine; use the llvm backend")
     if wanted == "cuda" or (not wanted and dr.has_backend(dr.JitBackend.CUDA)):
         import drjit.cuda as backend
         return backend, "cuda"
     if not dr.has_backend(dr.JitBackend.LLVM):
-        raise RuntimeError("Dr.Jit's LLVM backend is unavailable: install an LLVM runtime >= 16 "
-                           "(Debian/Ubuntu: apt-get install libllvm19) or set DRJIT_LIBLLVM_PATH")
+        raise BackendError(f"Dr.Jit's LLVM backend is unavailable (no LLVM, or one older than 15): {LLVM_FIX}")
+    if dr.detail.llvm_version()[0] < 16:  # LLVM 15 loads, then fails compiling the first kernel
+        raise BackendError(f"Dr.Jit found LLVM {'.'.join(map(str, dr.detail.llvm_version()))}, which cannot "
+                           f"compile the tracer's kernels: {LLVM_FIX}")
     import drjit.llvm as backend
     return backend, "llvm"
 
@@ -27,7 +38,7 @@ UInt32, UInt64, Int32, Bool, PCG32 = _backend.UInt32, _backend.UInt64, _backend.
 ArrayXu = _backend.ArrayXu
 PRECISION = os.environ.get("TRACER_PRECISION", "single").lower()
 if PRECISION not in ("single", "double"):
-    raise RuntimeError(f"TRACER_PRECISION must be 'single' or 'double', got '{PRECISION}'")
+    raise BackendError(f"TRACER_PRECISION must be 'single' or 'double', got '{PRECISION}'")
 # double: every kernel computes in float64 (random numbers stay float32, promoted), to tell rounding from bias
 Float, Array3f, ArrayXf = (_backend.Float64, _backend.Array3f64, _backend.ArrayXf64) if PRECISION == "double" \
     else (_backend.Float, _backend.Array3f, _backend.ArrayXf)

@@ -27,7 +27,7 @@ import tracer  # noqa: E402
 import tracer.adaptive  # noqa: E402
 from tracer.adaptive import render_adaptive  # noqa: E402
 from tracer.imageio import srgb_encode  # noqa: E402
-from tracer.render import render  # noqa: E402
+from tracer.rendering import render  # noqa: E402
 
 from . import convergence, plots  # noqa: E402
 from .metrics import agreement, rel_mse, ssim  # noqa: E402

@@ -45,7 +45,7 @@ def _child(job: dict) -> dict:
             return image[..., :3], time.perf_counter() - start, 0.0, 0
     else:
         import tracer
-        from tracer.render import render
+        from tracer.rendering import render
 
         import tracer.geometry
 

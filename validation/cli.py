@@ -232,10 +232,8 @@ def _run(args) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Runs a command: user errors in one line (exit 2), an interruption as such (exit 130), a bug with its
     traceback."""
+    from tracer.errors import UserError
     from tracer.scene import SceneError
-
-    from .renderers import RendererError
-    from .scenefile import ScenePlanError
 
     args = _parser().parse_args(argv)
     try:
@@ -245,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
             resume = "; run the same command again to resume" if args.command in COMMANDS else ""
             print(f"validate: interrupted{resume}", file=sys.stderr)
             return 130
-        if isinstance(e, (ScenePlanError, SceneError, RendererError)):
+        if isinstance(e, (UserError, SceneError)):
             print(f"validate: error: {e}", file=sys.stderr)
             return 2
         if isinstance(e, OSError) and e.filename:

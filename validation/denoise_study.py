@@ -31,7 +31,7 @@ from tracer.geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneGeometry  # noq
 from tracer.imageio import srgb_encode  # noqa: E402
 from tracer.integrators.direct import facing_normal, sample_direct  # noqa: E402
 from tracer.jit import NO_PRIM, Array3f, UInt32  # noqa: E402
-from tracer.render import render  # noqa: E402
+from tracer.rendering import render  # noqa: E402
 from tracer.sampling import seeded_rng  # noqa: E402
 
 from .filter_study import edge_mask  # noqa: E402

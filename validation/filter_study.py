@@ -25,7 +25,7 @@ from tracer.camera import primary_rays  # noqa: E402
 from tracer.geometry import SceneGeometry  # noqa: E402
 from tracer.imageio import srgb_encode  # noqa: E402
 from tracer.jit import NO_PRIM, UInt32  # noqa: E402
-from tracer.render import render  # noqa: E402
+from tracer.rendering import render  # noqa: E402
 from tracer.sampling import seeded_rng  # noqa: E402
 
 from .references import reference  # noqa: E402

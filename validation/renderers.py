@@ -19,12 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
+from tracer.errors import UserError
+
 from .scenefile import ScenePlan, ScenePlanError
 
 PLACEHOLDERS = ("scene", "output", "spp", "seed", "defines")
 
 
-class RendererError(RuntimeError):
+class RendererError(UserError, RuntimeError):
     """The renderer under test failed or wrote something unusable (reported in one line)."""
 
 
@@ -46,7 +48,7 @@ class TracerRenderer:
                 if self.estimator == "report" else {})
 
     def passes(self, plan: ScenePlan, passes: int, spp: int, seed: int) -> np.ndarray:
-        from tracer.render import render
+        from tracer.rendering import render
 
         scene = plan.tracer_scene()
         return np.stack([render(scene, self.estimator, spp=spp, seed=seed + k, max_depth=plan.max_depth,

@@ -15,12 +15,14 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from tracer.errors import UserError
+
 SET_ANYWHERE = ("width", "height", "max_depth", "spp")   # -D names a check applies to any scene
 MITSUBA_FILM = (768, 576)      # hdrfilm's default size
 MITSUBA_MAX_DEPTH = -1         # the path integrator's default
 
 
-class ScenePlanError(ValueError):
+class ScenePlanError(UserError, ValueError):
     """A scene or an override a comparison cannot use (a user error: reported in one line)."""
 
 

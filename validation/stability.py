@@ -220,7 +220,7 @@ class Outcome:
 def our_passes(scene_file: Path, params: dict, spp: int, passes: int, size: int) -> np.ndarray:
     import tracer
     from tracer.imageio import check_image
-    from tracer.render import render
+    from tracer.rendering import render
 
     scene = tracer.load_scene(scene_file, width=size, height=size, **params)
     images = []
@@ -366,7 +366,7 @@ def render_or_refuse(scene_file: Path, params: dict, size: int, spp: int, black:
     (exactly black if `black`). Anything else — a crash, NaN, a multi-line message — is not acceptable."""
     import tracer
     from tracer.imageio import ImageError, check_image
-    from tracer.render import render
+    from tracer.rendering import render
 
     try:
         scene = tracer.load_scene(scene_file, width=size, height=size, **params)

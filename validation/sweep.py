@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from tracer.render import render
+from tracer.rendering import render
 
 from .check import REPORT_REFERENCE_SPP
 from .metrics import measure
