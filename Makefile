@@ -3,7 +3,7 @@ VENV   ?= .venv
 PYTHON := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test setup clean
+.PHONY: demo test test-browser setup clean
 
 setup: $(STAMP)
 
@@ -19,6 +19,10 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PYTHON) -m pytest -q
+
+# The report page's viewer in headless Chromium alone (it also runs in `make test`).
+test-browser: $(STAMP)
+	$(PYTHON) -m pytest -q tests/test_viewer_browser.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache
