@@ -44,7 +44,7 @@ def browser():
     options = Options()
     options.binary_location = chromium
     for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                "--window-size=1400,900", "--force-device-scale-factor=1", "--hide-scrollbars"):
+                "--window-size=1400,1100", "--force-device-scale-factor=1", "--hide-scrollbars"):
         options.add_argument(arg)
     options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
     # the system driver, so that Selenium Manager downloads nothing
@@ -81,12 +81,12 @@ def test_viewer_in_chromium(browser, tmp_path: Path):
     p = np.full((4, 4, 3), 0.5)
     p[2, 3, 1] = 1e-9
     page = write_viewer(
-        tmp_path / "report", "synthetic: tracer against Mitsuba", images, compare=("tracer", "Mitsuba"),
+        tmp_path / "report", "synthetic images: the browser test's page", images, compare=("tracer", "Mitsuba"),
         block_test=BlockTest(p, threshold=1e-4, label="Welch's t-test"),
         plots=[Plot("RMSE against time", "seconds", "RMSE", [Series("tracer", [0.1, 1, 10], [0.3, 0.1, 0.03],
                                                                     hover=["1 spp", "10 spp", "100 spp"])],
                     log_x=True, log_y=True)],
-        tables=[("Table 1", "| N | RMSE |\n|---|---:|\n| 8 | 0.43 |")], verdicts=["**pass**: no block rejected"],
+        tables=[("Table 1", "| N | RMSE |\n|---|---:|\n| 8 | 0.43 |")], verdicts=["**FAIL**: 1 of 16 blocks rejected"],
         provenance={"machine": "test"})
     console = []
 

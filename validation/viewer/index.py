@@ -61,9 +61,12 @@ def _entry(reports: Path, md: Path | None, page: Path | None = None) -> str:
         links.append(f'<a href="{html.escape(md.relative_to(reports).as_posix())}">Markdown</a>')
     lead = re.sub(r"!?\[([^\]]*)\]\([^)]*\)", r"\1", lead)  # links are relative to the report, not here
     if len(lead) > LEAD_CHARS:
-        lead = lead[:LEAD_CHARS].rsplit(" ", 1)[0] + " …"
-    parts = [f'<section class="report" id="{html.escape(name)}"><h2>{html.escape(name)}: {inline(title or name)}</h2>',
-             f'<p class="links">{" · ".join(links)}</p>']
+        lead = lead[:LEAD_CHARS].rsplit(" ", 1)[0]
+        if lead.count("`") % 2:  # not inside a code span
+            lead = lead[:lead.rindex("`")].rstrip()
+        lead += " …"
+    parts = [f'<section class="report" id="{html.escape(name)}"><h2>{inline(title or name)}</h2>',
+             f'<p class="links"><code>{html.escape(name)}</code>: {" · ".join(links)}</p>']
     if lead:
         parts.append(f'<p class="lead">{inline(lead)}</p>')
     if found:

@@ -5,7 +5,7 @@ The page is `index.html` with its assets beside it, and needs neither network no
 - `viewer_images.js` holds every image as base64 of little-endian float32 linear RGB (row-major, H x W x 3),
   assigned to `window.VIEWER_IMAGES` and loaded by a script tag (browsers refuse `fetch()` of file:// URLs);
   `viewer.js` decodes it into Float32Arrays, so exposure, the display transform and the pixel readout work on
-  the linear values themselves. Its size is 16/3 bytes per pixel per image: 1.9 MB for a 600 x 600 image.
+  the linear values themselves. It takes 16 bytes per pixel per image: 5.8 MB for a 600 x 600 image.
 - the signed difference and the relative error of a compared pair are computed in the page, in float32 like
   NumPy's, from the two images;
 - plots are Plotly figures; `plotly.min.js` from the `plotly` wheel is written beside the page.

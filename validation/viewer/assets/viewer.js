@@ -159,7 +159,7 @@
   // ---- geometry: image pixel (x, y) covers canvas CSS pixels [tx + x s, tx + (x + 1) s)
   function resize() {
     const dpr = window.devicePixelRatio || 1, width = canvas.clientWidth;
-    const height = Math.round(Math.min(Math.max(width * H / W, 240), 0.8 * window.innerHeight));
+    const height = Math.round(Math.min(Math.max(width * H / W, 240), 0.7 * window.innerHeight));
     canvas.style.height = height + "px";
     canvas.width = Math.round(width * dpr);
     canvas.height = Math.round(height * dpr);
