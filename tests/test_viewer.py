@@ -6,6 +6,7 @@ from __future__ import annotations
 import base64
 import json
 import re
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -16,11 +17,12 @@ from validation.viewer.markdown import inline, table_html, tables, title_and_lea
 
 
 def _decoded(folder: Path) -> dict[str, np.ndarray]:
-    """viewer_images.js read back as viewer.js reads it: base64 of little-endian float32 (H, W, 3)."""
+    """viewer_images.js read back as viewer.js reads it: base64, inflate, the four byte planes interleaved
+    into little-endian float32 (H, W, 3)."""
     text = (folder / "viewer_images.js").read_text()
     records = json.loads(text[text.index("["):text.rindex("]") + 1].replace("},\n]", "}\n]"))
-    return {r["name"]: np.frombuffer(base64.b64decode(r["data"]), "<f4").reshape(r["height"], r["width"], 3)
-            for r in records}
+    return {r["name"]: np.frombuffer(zlib.decompress(base64.b64decode(r["data"])), np.uint8).reshape(4, -1).T
+            .copy().view("<f4").reshape(r["height"], r["width"], 3) for r in records}
 
 
 def test_page_carries_exact_float32_images(tmp_path: Path):
