@@ -74,6 +74,7 @@ def srgb8(v: float) -> int:
 
 def test_viewer_in_chromium(browser, tmp_path: Path):
     from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.actions.wheel_input import ScrollOrigin
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support.ui import WebDriverWait
 
@@ -158,6 +159,15 @@ def test_viewer_in_chromium(browser, tmp_path: Path):
     assert "rejected at p < 0.000100" in browser.find_element(By.ID, "readout-block").text
 
     keys.send_keys("1").send_keys("0").send_keys("f").perform()  # exposure back, fit
+    hover(*PIXEL)
+    before = browser.execute_script("return [viewer.state.tx, viewer.state.ty, viewer.state.scale]")
+    ActionChains(browser).click_and_hold().move_by_offset(40, 30).release().perform()  # drag pans
+    after = browser.execute_script("return [viewer.state.tx, viewer.state.ty, viewer.state.scale]")
+    assert after == [before[0] + 40, before[1] + 30, before[2]]
+    canvas = browser.find_element(By.ID, "canvas")
+    ActionChains(browser).scroll_from_origin(ScrollOrigin.from_element(canvas), 0, -240).perform()  # wheel zooms in
+    WebDriverWait(browser, 5).until(lambda d: d.execute_script("return viewer.state.scale") > before[2])
+    keys.send_keys("f").perform()
     hover(*PIXEL)
     shot = tmp_path / "viewer.png"
     browser.save_screenshot(str(shot))
