@@ -43,13 +43,14 @@ def test_page_carries_exact_float32_images(tmp_path: Path):
 
 
 def test_page_with_plots_and_tables(tmp_path: Path):
-    page = write_viewer(tmp_path, "plots only", {}, plots=[Plot("p", "t [s]", "RMSE", [Series("a", [1, 2], [3, 4])],
-                                                               log_x=True)],
+    plot = Plot("p", "t [s]", "RMSE", [Series("a", [1, 2], [3, 4]), Series("b", ["1", "2"], [1, 2], bars=True)],
+                log_x=True)
+    page = write_viewer(tmp_path, "plots only", {}, plots=[plot],
                         tables=[("rows", [["estimator", "slope"], ["path", "-0.5"]]),
                                 ("md", "| a | b |\n|:--|--:|\n| `x<y` | 2 |")], verdicts=["**FAIL**"])
     html = page.read_text()
     assert '<script src="plotly.min.js"></script>' in html and (tmp_path / "plotly.min.js").stat().st_size > 10 ** 6
-    assert '"type":"log"' in html.replace(" ", "")
+    assert '"type":"log"' in html.replace(" ", "") and '"type":"bar"' in html.replace(" ", "")
     assert "<td><code>x&lt;y</code></td>" in html and '<td style="text-align:right">-0.5</td>' in html
     assert "<strong>FAIL</strong>" in html and not (tmp_path / "viewer_images.js").exists()
 
@@ -106,8 +107,10 @@ def test_command_views_exr_files(tmp_path: Path, capsys):
         np.testing.assert_array_equal(decoded[name], image)
     capsys.readouterr()
     write_exr(tmp_path / "small.exr", images["ours"][:3])
+    (tmp_path / "text.exr").write_text("not an image")
     for args in (["images", str(tmp_path / "p"), str(tmp_path / "missing.exr")],
                  ["images", str(tmp_path / "p"), str(tmp_path / "ours.exr"), str(tmp_path / "small.exr")],
+                 ["images", str(tmp_path / "p"), str(tmp_path / "text.exr")],
                  ["index", str(tmp_path / "no_such_folder")]):
         assert main(args) == 1
         err = capsys.readouterr().err

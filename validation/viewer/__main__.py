@@ -34,7 +34,13 @@ def main(argv: list[str] | None = None) -> int:
     if len({p.stem for p in args.exr}) < len(args.exr):
         print("error: the EXR files' names (without .exr) must differ: they name the images", file=sys.stderr)
         return 1
-    arrays = {p.stem: read_exr(p) for p in args.exr}
+    arrays = {}
+    for path in args.exr:
+        try:
+            arrays[path.stem] = read_exr(path)
+        except Exception as e:  # OpenEXR's errors name no common base class
+            print(f"error: {path}: not an RGB OpenEXR file ({e})", file=sys.stderr)
+            return 1
     sizes = {a.shape for a in arrays.values()}
     if len(sizes) > 1:
         print("error: the images differ in size: " + ", ".join(f"{k} {a.shape[1]}x{a.shape[0]}"

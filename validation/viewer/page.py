@@ -42,6 +42,7 @@ class Series:
     y: Sequence[float]
     hover: Sequence[str] | None = None
     fitted: bool = False  # a fitted model rather than measurements: a dashed line without markers
+    bars: bool = False  # bars rather than a line
 
 
 @dataclass
@@ -71,7 +72,8 @@ def write_viewer(folder: str | Path, title: str, images: Mapping[str, np.ndarray
                  intro: str = "") -> Path:
     """Writes `folder/index.html` and its assets; returns the page's path.
 
-    images: name -> (H, W, 3) linear RGB, all of one size, shown in this order (keys 1..9).
+    images: name -> (H, W, 3) linear RGB, all of one size, shown in this order (keys 1..9 reach the
+    first nine views, the arrow keys all).
     compare: (test, reference) names: adds their signed difference test - reference and relative error.
     tables: (caption, Markdown text holding pipe tables, or rows of cells whose first row is the header).
     verdicts, intro: lines of Markdown (`code`, **bold**, [links](...)); provenance: name -> value."""
@@ -83,8 +85,6 @@ def write_viewer(folder: str | Path, title: str, images: Mapping[str, np.ndarray
         raise ValueError("images differ in size: " + ", ".join(f"{n} {a.shape}" for n, a in zip(names, arrays)))
     if compare is not None and any(n not in images for n in compare):
         raise ValueError(f"compare names {compare} are not all among the images {names}")
-    if names and len(names) + 2 * (compare is not None) + (block_test is not None) > 9:
-        raise ValueError("at most 9 views (keys 1..9): images, 2 for a compared pair, 1 for a block test")
 
     for asset in ("viewer.js", "viewer.css"):
         shutil.copyfile(ASSETS / asset, folder / asset)
@@ -92,6 +92,8 @@ def write_viewer(folder: str | Path, title: str, images: Mapping[str, np.ndarray
     if plots:
         _write_if_changed(folder / "plotly.min.js", _plotly_js())
         head.append('<script src="plotly.min.js"></script>')
+    else:
+        (folder / "plotly.min.js").unlink(missing_ok=True)
 
     body = [f"<header><h1>{html.escape(title)}</h1>"]
     if intro:
@@ -183,13 +185,17 @@ def _plot_html(plot: Plot, index: int) -> str:
 
     fig = go.Figure()
     for s in plot.series:
-        template = f"{html.escape(s.name)}<br>{html.escape(plot.x_label)}: %{{x}}<br>{html.escape(plot.y_label)}: %{{y:.4g}}"
+        template = (f"{html.escape(s.name)}<br>{html.escape(plot.x_label)}: %{{x}}"
+                    f"<br>{html.escape(plot.y_label)}: %{{y:.4g}}")
         if s.hover is not None:
             template += "<br>%{text}"
-        fig.add_trace(go.Scatter(
-            x=list(s.x), y=list(s.y), name=s.name, text=list(s.hover) if s.hover is not None else None,
-            mode="lines" if s.fitted else "lines+markers", line={"dash": "dash"} if s.fitted else None,
-            hovertemplate=template + "<extra></extra>"))
+        common = {"x": list(s.x), "y": list(s.y), "name": s.name, "hovertemplate": template + "<extra></extra>",
+                  "text": list(s.hover) if s.hover is not None else None}
+        if s.bars:
+            fig.add_trace(go.Bar(**common))
+        else:
+            fig.add_trace(go.Scatter(**common, mode="lines" if s.fitted else "lines+markers",
+                                     line={"dash": "dash"} if s.fitted else None))
     fig.update_layout(title=plot.title, template="plotly_white", height=440, hovermode="closest",
                       margin={"l": 70, "r": 20, "t": 50, "b": 60}, legend={"font": {"size": 11}})
     fig.update_xaxes(title=plot.x_label, type="log" if plot.log_x else None, showgrid=True)
