@@ -71,6 +71,9 @@ def test_markdown_tables():
     assert [t.header for t in found] == [["N", "time [s]", "note"], ["x"]]
     assert found[0].align == ["left", "right", "center"] and found[0].rows[0] == ["8", "2.09", "a | b"]
     assert title_and_lead(text) == ("Title", "First line second line.")
+    assert [(t.heading, t.note) for t in found] == [("Title", "First line second line."), ("Title", "text")]
+    section = tables("## A\n\n![plot](p.png)\n\n| x |\n|---|\n| 1 |\n\none\ntwo\n\n| y |\n|---|\n| 2 |\n")
+    assert [(t.heading, t.note) for t in section] == [("A", ""), ("A", "one two")]
     assert "1 more rows" in table_html(found[0], max_rows=1)
     assert inline("<b> [x](y.md) `<`") == '&lt;b&gt; <a href="y.md">x</a> <code>&lt;</code>'
 

@@ -31,6 +31,8 @@ class Table:
     header: list[str]
     rows: list[list[str]]
     align: list[str]  # "left", "right" or "center" per column
+    heading: str = ""  # the nearest heading above the table in its Markdown
+    note: str = ""  # the paragraph right above the table (after its heading), which usually explains it
 
 
 def _cells(line: str) -> list[str]:
@@ -57,9 +59,11 @@ def tables(markdown: str) -> list[Table]:
     """Every pipe table in a Markdown text: a header line, a separator line (---, :--, --:), rows."""
     lines = markdown.splitlines()
     found = []
+    heading, paragraph = "", []
     i = 0
     while i + 1 < len(lines):
         if lines[i].lstrip().startswith("|") and _is_separator(lines[i + 1]):
+            note = " ".join(paragraph)
             header = _cells(lines[i])
             align = [_alignment(c) for c in _cells(lines[i + 1])]
             align += ["left"] * (len(header) - len(align))
@@ -68,8 +72,16 @@ def tables(markdown: str) -> list[Table]:
             while i < len(lines) and lines[i].lstrip().startswith("|"):
                 rows.append(_cells(lines[i]))
                 i += 1
-            found.append(Table(header, rows, align[:len(header)]))
+            found.append(Table(header, rows, align[:len(header)], heading, note))
+            paragraph = []
         else:
+            line = lines[i].strip()
+            if line.startswith("#"):
+                heading, paragraph = line.lstrip("#").strip(), []
+            elif line.startswith("!["):
+                paragraph = []
+            elif line:
+                paragraph = paragraph + [line] if i > 0 and lines[i - 1].strip() else [line]
             i += 1
     return found
 

@@ -75,7 +75,8 @@ def write_viewer(folder: str | Path, title: str, images: Mapping[str, np.ndarray
     images: name -> (H, W, 3) linear RGB, all of one size, shown in this order (keys 1..9 reach the
     first nine views, the arrow keys all).
     compare: (test, reference) names: adds their signed difference test - reference and relative error.
-    tables: (caption, Markdown text holding pipe tables, or rows of cells whose first row is the header).
+    tables: (caption, rows of cells whose first row is the header), or (heading, Markdown text): every pipe
+    table in the text under its section's heading, after the paragraph above it.
     verdicts, intro: lines of Markdown (`code`, **bold**, [links](...)); provenance: name -> value."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -205,13 +206,23 @@ def _plot_html(plot: Plot, index: int) -> str:
 
 
 def _tables_html(caption: str, content: str | Sequence[Sequence[str]]) -> str:
-    if isinstance(content, str):
-        found: list[Table] = markdown_tables(content)
-        if not found:
-            raise ValueError(f"table {caption!r}: the Markdown holds no pipe table")
-    else:
-        found = [table_from_rows([list(r) for r in content])]
-    return "".join(table_html(t, caption if i == 0 else None) for i, t in enumerate(found))
+    """Rows: one table with the caption. Markdown: the caption as a heading, then each of its pipe tables
+    captioned by its section's heading and preceded by the paragraph above it."""
+    if not isinstance(content, str):
+        return table_html(table_from_rows([list(r) for r in content]), caption)
+    found: list[Table] = markdown_tables(content)
+    if not found:
+        raise ValueError(f"table {caption!r}: the Markdown holds no pipe table")
+    parts = [f"<h3>{inline(caption)}</h3>"] if caption else []
+    shown = caption
+    for t in found:
+        if t.heading and t.heading != shown:
+            parts.append(f"<h3>{inline(t.heading)}</h3>")
+            shown = t.heading
+        if t.note:
+            parts.append(f'<p class="note">{inline(t.note)}</p>')
+        parts.append(table_html(t))
+    return "".join(parts)
 
 
 _VIEWER_HTML = """<section id="viewer-section"><h2>Images</h2>
