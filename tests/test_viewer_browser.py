@@ -118,9 +118,9 @@ def test_viewer_in_chromium(browser, tmp_path: Path):
 
     def screen(dx: float, dy: float) -> list[int]:  # the canvas's colour at a point of PIXEL, in its units
         cx, cy = browser.execute_script(
-            "const r = document.getElementById('canvas').getBoundingClientRect();"
-            "const [x, y] = viewer.imageToClient(arguments[0], arguments[1]); return [x - r.left, y - r.top];",
-            PIXEL[0] + dx, PIXEL[1] + dy)
+            "const r = document.getElementById('canvas').getBoundingClientRect(), k = window.devicePixelRatio;"
+            "const [x, y] = viewer.imageToClient(arguments[0], arguments[1]);"
+            "return [(x - r.left) * k, (y - r.top) * k];", PIXEL[0] + dx, PIXEL[1] + dy)
         return browser.execute_script(
             "return Array.from(document.getElementById('canvas').getContext('2d')"
             ".getImageData(arguments[0], arguments[1], 1, 1).data.slice(0, 3))", int(cx), int(cy))
@@ -132,6 +132,10 @@ def test_viewer_in_chromium(browser, tmp_path: Path):
     assert browser.execute_script("return viewer.state.scale") == 8 * scale
     hover(*PIXEL)
     assert browser.find_element(By.ID, "readout-pixel").text == f"pixel ({PIXEL[0]}, {PIXEL[1]})"
+    backing, css = browser.execute_script(  # the browser does not rescale the canvas's bitmap
+        "const c = document.getElementById('canvas'), r = c.getBoundingClientRect(), k = window.devicePixelRatio;"
+        "return [[c.width, c.height], [Math.round(r.width * k), Math.round(r.height * k)]]")
+    assert backing == css
 
     def readout(view_index: int) -> np.ndarray:
         return np.array([np.float32(browser.find_element(

@@ -167,12 +167,17 @@
     }
 
     // ---- geometry: image pixel (x, y) covers canvas CSS pixels [tx + x s, tx + (x + 1) s)
+    // The canvas's backing store follows its CSS size (times the device pixel ratio) whenever the layout
+    // changes it, so that the browser never rescales the bitmap.
     function resize() {
-      const dpr = window.devicePixelRatio || 1, width = canvas.clientWidth;
+      const dpr = window.devicePixelRatio || 1, width = canvas.getBoundingClientRect().width;
       const height = Math.round(Math.min(Math.max(width * H / W, 240), 0.7 * window.innerHeight));
-      canvas.style.height = height + "px";
-      canvas.width = Math.round(width * dpr);
-      canvas.height = Math.round(height * dpr);
+      if (canvas.style.height !== height + "px") canvas.style.height = height + "px";
+      const backingWidth = Math.round(width * dpr), backingHeight = Math.round(height * dpr);
+      if (canvas.width !== backingWidth || canvas.height !== backingHeight) {
+        canvas.width = backingWidth;
+        canvas.height = backingHeight;
+      }
       if (state.fitted) fit(); else draw();
     }
     function fit() {
@@ -368,6 +373,7 @@
       e.preventDefault();
     });
     window.addEventListener("resize", resize);
+    new ResizeObserver(resize).observe(canvas);
 
     // For tests and the console: where image point (x, y) lies in the window's client coordinates.
     window.viewer = {
