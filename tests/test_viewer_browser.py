@@ -125,7 +125,10 @@ def test_viewer_in_chromium(browser, tmp_path: Path):
             "return Array.from(document.getElementById('canvas').getContext('2d')"
             ".getImageData(arguments[0], arguments[1], 1, 1).data.slice(0, 3))", int(cx), int(cy))
 
+    canvas_box = "const r = document.getElementById('canvas').getBoundingClientRect(); return [r.width, r.height]"
+    size = browser.execute_script(canvas_box)
     hover(*PIXEL)
+    assert browser.execute_script(canvas_box) == size, "the readout filling in moved the image"
     scale = browser.execute_script("return viewer.state.scale")
     for _ in range(3):
         keys.send_keys("z").perform()

@@ -218,32 +218,34 @@
       return v.toPrecision(9);
     }
     function readout() {
-      const box = el("readout");
-      if (!state.cursor) { box.classList.add("stale"); return; }
-      box.classList.remove("stale");
-      const [x, y] = state.cursor, p = y * W + x;
+      const box = el("readout"), at = state.cursor;
+      box.classList.toggle("stale", !at);
+      if (!at && box.firstChild) return;  // keeps the last pixel's values, greyed
+      const p = at ? at[1] * W + at[0] : 0;
       let rows = "";
       views.forEach((v, i) => {
         if (v.kind === "blocks") return;
         const cls = i === state.view ? ' class="current"' : "";
         rows += "<tr" + cls + "><th title=\"" + escapeHtml(v.name) + "\">" + (i + 1) + " " + escapeHtml(v.label) + "</th>";
         for (let c = 0; c < 3; c++) {
-          rows += '<td data-view="' + i + '" data-channel="' + c + '">' + formatFloat32(v.data[3 * p + c]) + "</td>";
+          const value = at ? formatFloat32(v.data[3 * p + c]) : "\u2013";
+          rows += '<td data-view="' + i + '" data-channel="' + c + '">' + value + "</td>";
         }
         rows += "</tr>";
       });
-      let html = '<p id="readout-pixel">pixel (' + x + ", " + y + ')</p><table><thead><tr><th></th><th>R</th><th>G</th>' +
-                 "<th>B</th></tr></thead><tbody>" + rows + "</tbody></table>";
-      if (blocks) {
-        const b = blockIndex(x, y), r = Math.floor(b / blocks.cols), c = b % blocks.cols, ps = [];
+      let html = '<p id="readout-pixel">' + (at ? "pixel (" + at[0] + ", " + at[1] + ")" : "move the mouse over the image") +
+                 "</p><table><thead><tr><th></th><th>R</th><th>G</th><th>B</th></tr></thead><tbody>" + rows +
+                 "</tbody></table>";
+      if (blocks && at) {
+        const b = blockIndex(at[0], at[1]), r = Math.floor(b / blocks.cols), c = b % blocks.cols, ps = [];
         for (let ch = 0; ch < blocks.channels; ch++) {
           const v = blocks.p[b * blocks.channels + ch];
           ps.push(v === null ? "\u2013" : v.toPrecision(3));
         }
         const pmin = blockP(b);
         const verdict = pmin === null ? "no data" : pmin < blocks.threshold ? "<strong>rejected</strong>" : "not rejected";
-        html += '<p id="readout-block">' + escapeHtml(blocks.label) + ", block (" + r + ", " + c + "): p = " + ps.join(", ") +
-                "; " + verdict + " at p &lt; " + blocks.threshold.toPrecision(3) + "</p>";
+        html += '<p id="readout-block">' + escapeHtml(blocks.label) + ", block (" + r + ", " + c + "): p = " +
+                ps.join(", ") + "; " + verdict + " at p &lt; " + blocks.threshold.toPrecision(3) + "</p>";
       }
       box.innerHTML = html;
     }
