@@ -76,7 +76,7 @@ def test_viewer_in_chromium(browser, tmp_path: Path):
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.actions.wheel_input import ScrollOrigin
     from selenium.webdriver.common.by import By
-    from selenium.webdriver.support.ui import WebDriverWait
+    from selenium.webdriver.support.ui import Select, WebDriverWait
 
     images = synthetic_images()
     p = np.full((4, 4, 3), 0.5)
@@ -165,7 +165,13 @@ def test_viewer_in_chromium(browser, tmp_path: Path):
     assert "block (2, 3)" in browser.find_element(By.ID, "readout-block").text
     assert "rejected at p < 0.000100" in browser.find_element(By.ID, "readout-block").text
 
-    keys.send_keys("1").send_keys("0").send_keys("f").perform()  # exposure back, fit
+    keys.send_keys("1").perform()
+    Select(browser.find_element(By.ID, "transform")).select_by_value("signed")  # by the menu ...
+    keys.send_keys("2").perform()  # ... and the keys still reach the viewer
+    assert view() == 1
+    keys.send_keys("1").perform()
+    Select(browser.find_element(By.ID, "transform")).select_by_value("srgb")
+    keys.send_keys("0").send_keys("f").perform()  # exposure back, fit
     hover(*PIXEL)
     before = browser.execute_script("return [viewer.state.tx, viewer.state.ty, viewer.state.scale]")
     ActionChains(browser).click_and_hold().move_by_offset(40, 30).release().perform()  # drag pans

@@ -319,6 +319,9 @@
     exposureInput.addEventListener("input", () => setExposure(Number(exposureInput.value)));
     transformSelect.addEventListener("change", () => setTransform(transformSelect.value));
     outline.addEventListener("change", draw);
+    for (const control of [exposureInput, transformSelect, outline]) {  // the keys go back to the viewer
+      control.addEventListener("change", () => control.blur());
+    }
     el("zoom-in").addEventListener("click", () => zoomKey(2));
     el("zoom-out").addEventListener("click", () => zoomKey(0.5));
     el("zoom-fit").addEventListener("click", fit);
