@@ -1,6 +1,7 @@
 // The report page's HDR image viewer: linear float32 RGB images (window.VIEWER_IMAGES, from
 // viewer_images.js) shown with an exposure and a display transform, zoomed to single pixels with
-// nearest-neighbour display, panned, and read out pixel by pixel. Written by validation/viewer/page.py.
+// nearest-neighbour display, panned, and read out pixel by pixel. validation/viewer/page.py copies it
+// beside each page.
 "use strict";
 (function () {
   const specElement = document.getElementById("viewer-spec");
@@ -37,7 +38,7 @@
       const [ia, ib] = spec.compare, a = views[ia].data, b = views[ib].data;
       const diff = new Float32Array(3 * N), rel = new Float32Array(3 * N);
       for (let i = 0; i < 3 * N; i++) {
-        diff[i] = a[i] - b[i];  // rounded once to float32, as NumPy's float32 subtraction
+        diff[i] = a[i] - b[i];  // exact in double (operands within 2^29 of each other), rounded once: NumPy's float32
         rel[i] = (a[i] - b[i]) / (Math.abs(b[i]) + spec.epsilon);
       }
       const an = views[ia].name, bn = views[ib].name;
