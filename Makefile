@@ -3,7 +3,7 @@ VENV   ?= .venv
 PYTHON := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test test-fast setup clean
+.PHONY: demo test test-fast test-browser setup clean
 
 setup: $(STAMP)
 
@@ -20,8 +20,13 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PYTHON) -m pytest -q
 
-test-fast: $(STAMP)   # the edit loop: everything but the statistical comparisons against Mitsuba (-m slow)
+# The edit loop: everything but the statistical comparisons against Mitsuba (marked slow).
+test-fast: $(STAMP)
 	$(PYTHON) -m pytest -q -m "not slow"
+
+# The report page's viewer in headless Chromium alone (it also runs in `make test`).
+test-browser: $(STAMP)
+	$(PYTHON) -m pytest -q tests/test_viewer_browser.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

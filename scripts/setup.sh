@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Installs what the project needs: an LLVM >= 16 runtime for Dr.Jit's CPU backend,
-# then a virtual environment with the package, Mitsuba and the test tools.
+# headless Chromium and its driver for the report viewer's browser test, then a virtual environment
+# with the package, Mitsuba and the test tools.
 set -euo pipefail
 VENV="${1:-.venv}"
 
@@ -17,6 +18,17 @@ if ! have_llvm; then
         echo "setup: Dr.Jit's CPU backend needs an LLVM runtime >= 16 (Debian/Ubuntu: apt-get install libllvm19;" \
              "elsewhere install LLVM 16+ and set DRJIT_LIBLLVM_PATH to its libLLVM.so)" >&2
         exit 1
+    fi
+fi
+
+if ! { command -v chromium >/dev/null || command -v chromium-browser >/dev/null; } || ! command -v chromedriver >/dev/null; then
+    if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+        echo "setup: installing chromium and chromium-driver (the report viewer's browser test)"
+        apt-get update -qq
+        DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null
+    else
+        echo "setup: no chromium/chromedriver: tests/test_viewer_browser.py will skip outside CI" \
+             "(Debian/Ubuntu: apt-get install chromium chromium-driver)" >&2
     fi
 fi
 
