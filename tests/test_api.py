@@ -78,7 +78,8 @@ def test_a_scene_file_path_is_loaded(tmp_path, scene):
 def test_a_filter_by_name_is_mitsubas_default_of_that_kind(scene):
     by_name = tracer.render(scene, spp=2, rfilter="gaussian").image
     by_object = tracer.render(scene, spp=2, rfilter=ReconstructionFilter("gaussian")).image
-    assert np.array_equal(by_name, by_object)
+    # equal up to the order of the Gaussian's overlapping splats (float atomics, several threads)
+    np.testing.assert_allclose(by_name, by_object, rtol=1e-5, atol=1e-7)
 
 
 def test_more_samples_than_a_pass_holds_render_in_passes(scene, monkeypatch):
