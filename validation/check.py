@@ -12,6 +12,7 @@ times its camera rays per pass, so that both sides' pass means are about as nois
 from __future__ import annotations
 
 import json
+import sys
 import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -133,10 +134,12 @@ def _note(c: Comparison, spp: int, settings: Settings, ours: np.ndarray) -> str:
 
 def write_images(folder: Path, scene_plan: ScenePlan, result: CheckResult, ours: np.ndarray, ref: Reference) -> None:
     """ours.exr/png, reference.exr/png, difference.png (red: ours brighter), blocks.png (rejected blocks:
-    red, rejected but decided by rare samples: orange, else grey by -log10 p)."""
+    red, rejected but decided by rare samples: orange, else grey by -log10 p), and index.html: the images as
+    data in the interactive viewer (validation.viewer) with the block test's p-values."""
     from tracer.imageio import write_exr, write_png
 
     from .plots import signed_colours
+    from .viewer import BlockTest, write_viewer
 
     folder = Path(folder) / f"{scene_plan.path.stem}-d{result.max_depth}-{_slug(result.renderer)}"
     folder.mkdir(parents=True, exist_ok=True)
@@ -146,6 +149,13 @@ def write_images(folder: Path, scene_plan: ScenePlan, result: CheckResult, ours:
     write_png(folder / "reference.png", ref.mean)
     _write_rgb8(folder / "difference.png", signed_colours((ours - ref.mean).mean(-1)))
     _write_rgb8(folder / "blocks.png", _block_map(result.comparison, scene_plan))
+    c = result.comparison
+    rows, cols = c.p.shape[0] * protocol.BLOCK, c.p.shape[1] * protocol.BLOCK   # the blocks' pixels
+    write_viewer(folder, f"{scene_plan.path.name}: {result.renderer} against Mitsuba",
+                 {"ours": ours[:rows, :cols], "Mitsuba": ref.mean[:rows, :cols]}, compare=("ours", "Mitsuba"),
+                 block_test=BlockTest(c.p, c.alpha / 2 / c.tests, "Welch's t-test per 4 x 4 block (Bonferroni)"),
+                 verdicts=[f"`{result.line()}`"] + ([result.note] if result.note else []),
+                 provenance={"scene": str(scene_plan.path), "command": " ".join(sys.argv)})
 
 
 def _block_map(c: Comparison, scene_plan: ScenePlan) -> np.ndarray:

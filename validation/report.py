@@ -201,6 +201,31 @@ def generate(scene_file: str | Path, out: Path | None = None, config: Config = C
               "measured false-alarm rate is in reports/calibration.md. Mitsuba against its own reference: "
               f"{false_alarms} of {len(mitsuba_rows)} runs disagree.", "",
               "## Machine and versions", ""] + environment(command or " ".join(sys.argv))
-    lines += ["", "All rows: `runs.csv` / `runs.json` beside this file."]
-    (out / "README.md").write_text("\n".join(lines) + "\n")
+    lines += ["", "All rows: `runs.csv` / `runs.json` beside this file; the images as data, the plots and the "
+              "tables in [index.html](index.html)."]
+    text = "\n".join(lines) + "\n"
+    (out / "README.md").write_text(text)
+    _viewer(out, scene_file, table1(config)[1], main_ref, conv, depth, by_key, text)
     return out / "README.md"
+
+
+def _viewer(out: Path, scene_file: Path, spec: RunSpec, ref: Reference, conv: dict, depth: dict, by_key: dict,
+            markdown: str) -> None:
+    """index.html beside README.md: the tracer's image and the reference as data, error against time and
+    depth as interactive plots, the Markdown's tables; and the index of every report."""
+    from .viewer import Plot, Series, write_index, write_viewer
+
+    def series(runs: dict, x: str) -> list[Series]:
+        return [Series(specs[0].label, [by_key[s.key][x] if x != "max_depth" else str(s.max_depth) for s in specs],
+                       [by_key[s.key]["rmse"] for s in specs],
+                       hover=[f"{s.spp} spp, {by_key[s.key]['test']}" for s in specs]) for specs in runs.values()]
+
+    plots = [Plot("RMSE against render time", "render time per image [s]", "RMSE", series(conv, "render_seconds"),
+                  log_x=True, log_y=True),
+             Plot("RMSE against depth", "max_depth", "RMSE", series(depth, "max_depth"), log_y=True)]
+    image = np.load(image_path(scene_file, spec))
+    write_viewer(out, f"{scene_file.stem}: the tracer against Mitsuba 3",
+                 {f"tracer report N={spec.direct} M={spec.indirect}": image, "Mitsuba": ref.mean},
+                 compare=(f"tracer report N={spec.direct} M={spec.indirect}", "Mitsuba"), plots=plots,
+                 tables=[("Tables", markdown)], intro=markdown.split("\n")[2])
+    write_index(out.parent)
