@@ -18,11 +18,11 @@ from tracer.rendering import render
 from tracer.sampling import seeded_rng
 from validation.metrics import agreement
 from validation.references import reference
+from validation.protocol import ALPHA   # family-wise false-positive rate of one comparison
 
 SCENES = Path(__file__).resolve().parents[1] / "mitsuba_scenes"
 ROOM = SCENES / "hexagon_room.xml"
 Z_LIMIT = 5.0     # two-sided false-positive rate of the z-tests below: 5.7e-7
-ALPHA = 1e-3      # family-wise false-positive rate of the Welch comparison with Mitsuba
 
 
 def own_pilot(values, radius=adaptive.RADIUS):

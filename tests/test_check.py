@@ -11,10 +11,10 @@ from validation import cli
 from validation.check import exit_code, write_json, write_junit
 from validation.scenefile import ScenePlanError, plan
 from validation.stats import compare, grubbs_critical
+from validation.protocol import ALPHA   # family-wise false-positive rate of one comparison
 
 from .conftest import SCENES
 
-ALPHA = 1e-3
 
 
 def normal_passes(seed: int, mean: float = 1.0, sd: float = 0.1, k: int = 16, shape=(8, 8, 3)) -> np.ndarray:

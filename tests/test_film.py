@@ -5,6 +5,7 @@ import pytest
 from tracer.film import Film, ReconstructionFilter
 from tracer.jit import Array3f, Float
 from validation.mitsuba_render import mitsuba
+from validation.protocol import ALPHA   # family-wise false-positive rate of one comparison
 
 FILTERS = {"box": ReconstructionFilter("box"), "gaussian": ReconstructionFilter("gaussian"),
            "gaussian stddev 0.8": ReconstructionFilter("gaussian", stddev=0.8),
@@ -97,7 +98,6 @@ def test_gaussian_is_mitsubas_windowed_gaussian():
 
 
 # ---- whole images against Mitsuba ------------------------------------------------------------------
-ALPHA = 1e-3     # family-wise false-positive rate of one Welch comparison (validation/stats.py)
 PASSES, SPP, SIZE = 16, 64, 32
 
 

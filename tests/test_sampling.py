@@ -25,9 +25,9 @@ from scipy import stats
 
 from tracer import sampling
 from tracer.jit import BACKEND, Array3f, Float
+from validation.protocol import ALPHA   # family-wise false-positive rate of one comparison
 
 U = 2.0 ** -24
-ALPHA = 1e-3
 N_SAMPLES = 1_000_000
 AD = importlib.import_module(f"drjit.{BACKEND}.ad")   # AD-enabled twins of tracer.jit's array types
 

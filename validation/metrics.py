@@ -17,9 +17,9 @@ from tracer.imageio import srgb_encode
 
 from .references import BLOCK, Reference
 from .stats import AgreementTest, block_means, welch_test
+from .protocol import ALPHA   # family-wise false-positive rate of one comparison
 
 REL_EPS = 1e-2   # the relative MSE's guard against dark pixels: (x - r)^2 / (r^2 + REL_EPS)
-ALPHA = 1e-3     # family-wise false-positive rate of one Welch comparison
 
 
 @dataclass

@@ -19,3 +19,4 @@ SEED_TEST = 1000        # the renderer under test
 SEED_REFERENCE = 777    # Mitsuba references (cached)
 SEED_SWEEP = 1          # report sweeps: spec.seed * 1000 + k
 SEED_NULL = 50_000      # calibration: null comparisons, one base per repetition above this
+SEED_STABILITY = 4242   # the numerical stability suite

@@ -41,9 +41,9 @@ from scipy import stats
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "mitsuba_scenes"
 STRESS = SCENES / "stress"
-ALPHA = 1e-3          # family-wise false-positive rate of the whole suite
+from .protocol import ALPHA, SEED_STABILITY as SEED   # ALPHA: family-wise false-positive rate of the suite
+
 PASSES = 8            # independent passes per renderer and case
-SEED = 4242
 # Biases below RESOLUTION x the reference are not resolved. Rare events make per-pass variances
 # underestimate: a Russian-roulette kill (probability 5e-4 per vertex) that no pass happens to contain leaves
 # the survivors' 1/q weights as an apparent +1e-6..1e-5 bias with a tiny variance. The block test
@@ -217,24 +217,27 @@ class Outcome:
     detail: str = ""
 
 
-def our_passes(scene_file: Path, params: dict, spp: int, passes: int, size: int) -> np.ndarray:
-    import tracer
-    from tracer.imageio import check_image
-    from tracer.rendering import render
+def _plan(scene_file: Path, params: dict, size: int):
+    from .scenefile import plan
 
-    scene = tracer.load_scene(scene_file, width=size, height=size, **params)
-    images = []
-    for k in range(passes):
-        image = render(scene, "path", spp=spp, seed=SEED + k).image
+    return plan(scene_file, {"width": str(size), "height": str(size)} | {k: str(v) for k, v in params.items()})
+
+
+def our_passes(scene_file: Path, params: dict, spp: int, passes: int, size: int) -> np.ndarray:
+    from tracer.imageio import check_image
+
+    from .renderers import TracerRenderer
+
+    images = TracerRenderer("path").passes(_plan(scene_file, params, size), passes, spp, SEED)
+    for k, image in enumerate(images):
         check_image(image, f"{scene_file.name} pass {k}")
-        images.append(image)
-    return np.stack(images)
+    return images
 
 
 def mitsuba_passes(scene_file: Path, params: dict, spp: int, passes: int, size: int) -> np.ndarray:
-    from validation.mitsuba_render import render_passes
+    from .renderers import MitsubaRenderer
 
-    return render_passes(scene_file, passes, spp, seed=SEED, width=size, height=size, **params)
+    return MitsubaRenderer().passes(_plan(scene_file, params, size), passes, spp, SEED)
 
 
 def _image_mean_test(a: np.ndarray, b: np.ndarray | float, alpha: float):
