@@ -55,8 +55,10 @@ def _temporary(path: Path) -> Path:
     raise FileExistsError(f"{path}: no free temporary name beside it")
 
 
-def _atomic(path: Path, write) -> None:
-    tmp = _temporary(path)
+def atomic_write(path: str | Path, write) -> None:
+    """`write(temporary_name)` and then the temporary moved onto `path`: `path` is either the old file or the
+    complete new one, never a partial file, and has the umask's mode."""
+    tmp = _temporary(Path(path))
     try:
         write(str(tmp))
         os.replace(tmp, path)
@@ -102,7 +104,7 @@ def _write_rgb_exr(path: Path, image: np.ndarray, metadata: dict[str, str] | Non
         with OpenEXR.File(header, {"RGB": rgb}) as f:
             f.write(tmp)
 
-    _atomic(path, write)
+    atomic_write(path, write)
 
 
 def read_exr_header(path: str | Path) -> dict:
@@ -128,7 +130,7 @@ def write_png(path: str | Path, image: np.ndarray, metadata: dict[str, str] | No
     info = PngInfo()
     for key, value in (metadata or {}).items():
         info.add_text(key, str(value))
-    _atomic(Path(path), lambda tmp: Image.fromarray(pixels, "RGB").save(tmp, format="PNG", pnginfo=info))
+    atomic_write(Path(path), lambda tmp: Image.fromarray(pixels, "RGB").save(tmp, format="PNG", pnginfo=info))
 
 
 WRITERS: dict[str, Callable] = {".exr": write_exr, ".png": write_png}

@@ -12,7 +12,6 @@ so the tables can be recomputed without rendering and an interrupted run resumes
 """
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -123,8 +122,9 @@ def measure(cells: list[Cell], cache: Path = CACHE) -> list[dict]:
 
 
 def write_json(rows: list[dict], path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(rows, indent=1))
+    from .provenance import write_json
+
+    write_json(path, rows)
 
 
 def _cell_table(rows: list[dict], alpha: float) -> list[str]:
@@ -180,7 +180,7 @@ def check_process_seconds() -> tuple[float, float]:
 def report(out: Path, repetitions: int = 12) -> Path:
     """Measures (or reads from the cache) the null grid and the power table; writes `out` and its JSON."""
     from . import power
-    from .report import environment
+    from .provenance import environment, write_text
 
     start = time.perf_counter()
     rows = measure(grid(repetitions))
@@ -234,6 +234,4 @@ def report(out: Path, repetitions: int = 12) -> Path:
         f"passes cached. Inside one process, a check in the power table took {np.median(seconds):.1f} s (median; "
         "references cached); seconds per null repetition (both sides rendered) are in calibration.json.", "",
         "## Machine and versions", ""] + environment(f"validate calibrate --repetitions {repetitions}")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(lines) + "\n")
-    return out
+    return write_text(out, "\n".join(lines) + "\n")

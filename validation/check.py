@@ -11,7 +11,6 @@ times its camera rays per pass, so that both sides' pass means are about as nois
 """
 from __future__ import annotations
 
-import json
 import sys
 import time
 import xml.etree.ElementTree as ET
@@ -185,9 +184,9 @@ def exit_code(results: list[CheckResult]) -> int:
 
 
 def write_json(results: list[CheckResult], path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"exit_code": exit_code(results), "checks": [r.as_dict() for r in results]},
-                               indent=1) + "\n")
+    from .provenance import write_json as write
+
+    write(path, {"exit_code": exit_code(results), "checks": [r.as_dict() for r in results]})
 
 
 def write_junit(results: list[CheckResult], path: Path) -> None:
@@ -204,7 +203,8 @@ def write_junit(results: list[CheckResult], path: Path) -> None:
         elif r.verdict == "inconclusive":
             ET.SubElement(case, "skipped", message=r.note or r.comparison.summary())
         ET.SubElement(case, "system-out").text = r.line()
-    path.parent.mkdir(parents=True, exist_ok=True)
     root = ET.Element("testsuites")
     root.append(suite)
-    ET.ElementTree(root).write(path, encoding="unicode", xml_declaration=True)
+    from .provenance import write_text
+
+    write_text(path, "<?xml version='1.0' encoding='utf-8'?>\n" + ET.tostring(root, encoding="unicode") + "\n")

@@ -10,6 +10,8 @@ import importlib
 import sys
 from pathlib import Path
 
+from .provenance import write_text
+
 STUDIES = {
     "filters": ("Anti-aliasing and pixel filters", "validation.filter_study"),
     "adaptive": ("Adaptive sampling", "validation.adaptive_study"),
@@ -29,6 +31,4 @@ def generate(scene_file: Path, out: Path, quick: bool = False, only: list[str] |
         title, module = STUDIES[name]
         print(f"improvements: {title}", file=sys.stderr, flush=True)
         lines += [f"## {title}", ""] + importlib.import_module(module).section(scene_file, out, quick) + [""]
-    path = out / "improvements.md"
-    path.write_text("\n".join(lines) + "\n")
-    return path
+    return write_text(out / "improvements.md", "\n".join(lines) + "\n")

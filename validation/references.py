@@ -15,14 +15,14 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import os
-import tempfile
 import time
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from tracer.imageio import atomic_write
 
 from .mitsuba_render import version
 from .protocol import BLOCK, SEED_REFERENCE as SEED
@@ -57,15 +57,7 @@ def save(path: Path, ref: Reference) -> None:
     meta = json.dumps({"spp": ref.spp, "seconds": ref.seconds, "key": ref.key, "sha256": _digest(arrays)})
     buf = io.BytesIO()
     np.savez(buf, meta=np.array(meta), **arrays)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(buf.getvalue())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write(path, lambda tmp: Path(tmp).write_bytes(buf.getvalue()))
 
 
 def load(path: Path, key: str) -> Reference | None:

@@ -7,16 +7,15 @@ depth, image panels, and the machine, versions and command that produced it all.
 """
 from __future__ import annotations
 
-import platform
 import sys
 from dataclasses import dataclass
 from functools import lru_cache
-from importlib.metadata import version as package_version
 from pathlib import Path
 
 import numpy as np
 
 from . import convergence, plots
+from .provenance import environment, write_text
 from .references import Reference, reference
 from .sweep import RunSpec, image_path, sweep
 
@@ -142,21 +141,6 @@ def _images_section(scene_file: Path, spec: RunSpec, ref: Reference, out: Path) 
             "(red: tracer brighter), colour scale clipped at the 99th percentile of its magnitude."]
 
 
-def environment(command: str) -> list[str]:
-    from .mitsuba_render import version
-
-    packages = ", ".join(f"{p} {package_version(p)}" for p in ("drjit", "numpy", "scipy", "scikit-image", "matplotlib"))
-    return [f"- Command: `{command}`",
-            f"- Machine: {platform.machine()}, {platform.processor() or 'cpu'}, {_cores()} cores, {platform.platform()}",
-            f"- Python {platform.python_version()}; {version()}; {packages}"]
-
-
-def _cores() -> int:
-    import os
-
-    return len(os.sched_getaffinity(0))
-
-
 def generate(scene_file: str | Path, out: Path | None = None, config: Config = Config(),
              command: str | None = None) -> Path:
     """Runs (or resumes) every run the report needs and writes `out/README.md` with its figures."""
@@ -204,7 +188,7 @@ def generate(scene_file: str | Path, out: Path | None = None, config: Config = C
     lines += ["", "All rows: `runs.csv` / `runs.json` beside this file; the images as data, the plots and the "
               "tables in [index.html](index.html)."]
     text = "\n".join(lines) + "\n"
-    (out / "README.md").write_text(text)
+    write_text(out / "README.md", text)
     _viewer(out, scene_file, table1(config)[1], main_ref, conv, depth, by_key, text)
     return out / "README.md"
 

@@ -595,8 +595,9 @@ def write_report(path: Path, outcomes: list[Outcome], sweep: dict, sweep_seconds
     if any(m for m, _ in crack_counts):
         lines.append("- cracks: rays aimed exactly at shared edges and corners escape the closed enclosures "
                      "(table above): the edge tests are not conservative enough for these rays.")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(lines) + "\n")
+    from .provenance import write_text
+
+    write_text(path, "\n".join(lines) + "\n")
 
 
 def _verdict(o: Outcome) -> str:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import json
 import os
 import time
 from dataclasses import dataclass
@@ -25,6 +24,7 @@ from tracer.rendering import render
 from .check import REPORT_REFERENCE_SPP
 from .metrics import measure
 from .protocol import ALPHA, BLOCK
+from .provenance import write_json
 from .references import mitsuba_reference
 from .stats import block_means, compare
 from .mitsuba_render import mitsuba
@@ -178,5 +178,5 @@ def sweep(scene_file: str | Path, specs: list[RunSpec], references, results: Pat
         np.save(image_path(scene_file, spec), image)
         _append(results, row)
     rows = list({r["key"]: r for r in read_rows(results) if r.get("content") == content}.values())
-    results.with_suffix(".json").write_text(json.dumps(rows, indent=1))
+    write_json(results.with_suffix(".json"), rows)
     return rows
