@@ -84,8 +84,8 @@ def _check_parser(sub) -> None:
     k.add_argument("--max-spp", type=int, default=protocol.MAX_SPP, help="an inconclusive check is repeated at 4x "
                    f"the spp per pass up to this (default {protocol.MAX_SPP})")
     k.add_argument("--seed", type=int, default=protocol.SEED_TEST)
-    k.add_argument("--size", type=int, default=protocol.SIZE, help="longer side of the image, the scene's aspect "
-                   f"kept (default {protocol.SIZE}; -D width=... height=... sets both)")
+    k.add_argument("--size", type=_size, default=protocol.SIZE, help="longer side of the image, the scene's aspect "
+                   f"kept (default {protocol.SIZE}; 'native': the scene's own film; -D width=... height=... sets both)")
     k.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
                    help="override a <default> of the scene; width, height, max_depth work on any scene")
     k.add_argument("--alpha", type=float, default=protocol.ALPHA, help="family-wise false-positive rate of one "
@@ -94,6 +94,16 @@ def _check_parser(sub) -> None:
     k.add_argument("--junit", type=Path, metavar="FILE", help="write JUnit XML (one test case per check)")
     k.add_argument("--output", "-o", type=Path, metavar="DIR", help="on disagree or inconclusive: ours, the "
                    "reference, their difference and the rejected blocks as images")
+
+
+def _size(text: str) -> int | None:
+    """--size: a number of pixels, or 'native' (None: the scene's own film size)."""
+    if text == "native":
+        return None
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of pixels or 'native', got '{text}'") from None
 
 
 def _defines(items: list[str]) -> dict[str, str]:

@@ -111,6 +111,6 @@ class ExternalRenderer:
                 image = read_exr(output)
                 if image.shape[:2] != (plan.height, plan.width):
                     raise RendererError(f"renderer wrote {image.shape[1]} x {image.shape[0]} pixels, the plan is "
-                                        f"{plan.width} x {plan.height} (it must honour -D width=... -D height=...)")
+                                        f"{plan.width} x {plan.height} (it must honour -D width=... -D height=..., or check with --size native)")
                 images.append(image[..., :3].astype(np.float32))
         return np.stack(images)
