@@ -27,6 +27,11 @@ def _parser() -> argparse.ArgumentParser:
                        "comparisons and its power on injected faults (cached renders; resumes)")
     c.add_argument("--output", "-o", type=Path, default=Path("reports/calibration.md"))
     c.add_argument("--repetitions", type=int, default=12, help="null comparisons per cell (default 12)")
+    v = sub.add_parser("coverage", help="write reports/mitsuba_scenes.md: which of Mitsuba's own scenes (a local "
+                       "copy of mitsuba-renderer/mitsuba-data) the tracer renders and agrees on, what blocks the rest")
+    v.add_argument("mitsuba_data", type=Path, metavar="MITSUBA_DATA_DIR")
+    v.add_argument("--output", "-o", type=Path, default=Path("reports/mitsuba_scenes.md"))
+    v.add_argument("--no-check", action="store_true", help="only load the scenes (no renders)")
     st = sub.add_parser("stability", help="write reports/stability.md: the numerical stability suite")
     st.add_argument("--output", "-o", type=Path, default=Path("reports/stability.md"))
     r = sub.add_parser("report", help="write reports/<scene>/README.md (resumes an interrupted sweep)")
@@ -212,6 +217,16 @@ def _run(args) -> int:
         from .calibration import report
 
         print(report(args.output, args.repetitions))
+        return 0
+    if args.command == "coverage":
+        from .coverage import FOLDERS, report
+        from .scenefile import ScenePlanError
+
+        if not any((args.mitsuba_data / f).is_dir() for f in FOLDERS):
+            raise ScenePlanError(f"'{args.mitsuba_data}' holds none of {', '.join(FOLDERS)}: expected a copy of "
+                                 "mitsuba-renderer/mitsuba-data")
+        command = "validate " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+        print(report(args.mitsuba_data, args.output, command, not args.no_check))
         return 0
     if args.command == "stability":
         from .stability import main as stability
