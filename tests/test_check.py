@@ -132,3 +132,26 @@ def test_check_on_a_black_scene_agrees(capsys):
     code = cli.main(["check", str(SCENES / "stress" / "empty.xml"), "--passes", "4", "--spp", "4"])
     out = capsys.readouterr().out
     assert code == 0 and "both images are black" in out, out
+
+
+def test_an_interruption_wrapped_by_drjit_is_reported_as_one(monkeypatch, capsys):
+    """Dr.Jit re-raises a KeyboardInterrupt from inside its loops as a RuntimeError."""
+    def interrupted(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as e:
+            raise RuntimeError("dr.while_loop(): encountered an exception (see above)") from e
+
+    monkeypatch.setattr(cli, "_run", interrupted)
+    assert cli.main(["check", str(SCENES / "hexagon_room.xml")]) == 130
+    assert capsys.readouterr().err.strip() == "validate: interrupted"
+
+
+def test_a_bug_shows_its_traceback(monkeypatch, capsys):
+    def bug(args):
+        raise ZeroDivisionError("a bug")
+
+    monkeypatch.setattr(cli, "_run", bug)
+    with pytest.raises(ZeroDivisionError):
+        cli.main(["check", str(SCENES / "hexagon_room.xml")])
+    assert "internal error" in capsys.readouterr().err
