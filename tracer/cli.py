@@ -91,7 +91,8 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _defines(items: list[str]) -> dict[str, str]:
+def parse_defines(items: list[str]) -> dict[str, str]:
+    """-D NAME=VALUE arguments as a dict (the last value of a name wins)."""
     out = {}
     for item in items:
         name, sep, value = item.partition("=")
@@ -208,7 +209,7 @@ def _render(args) -> int:
     from .mitsuba_xml import load_scene
     from .rendering import check_rfilter, check_settings, make_plan, render, report_settings
 
-    scene = load_scene(args.scene, **_defines(args.defines))
+    scene = load_scene(args.scene, **parse_defines(args.defines))
     if width is not None or height is not None:
         cam = scene.camera
         scene.camera = dataclasses.replace(cam, width=width or cam.width, height=height or cam.height)
@@ -288,7 +289,7 @@ def _write_outputs(scene, args, paths: list[Path], result, rfilter) -> tuple[lis
 def _info(args) -> int:
     from .mitsuba_xml import load_scene, parse_tree
 
-    defines = _defines(args.defines)
+    defines = parse_defines(args.defines)
     scene = load_scene(args.scene, **defines)
     from .geometry import SceneGeometry
 

@@ -111,24 +111,14 @@ def _size(text: str) -> int | None:
         raise argparse.ArgumentTypeError(f"expected a number of pixels or 'native', got '{text}'") from None
 
 
-def _defines(items: list[str]) -> dict[str, str]:
-    from .scenefile import ScenePlanError
-
-    out = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        if not sep or not name:
-            raise ScenePlanError(f"-D {item}: expected NAME=VALUE")
-        out[name] = value
-    return out
-
-
 def _check(args) -> int:
     from .check import Settings, check, exit_code, write_json, write_junit
     from .renderers import ExternalRenderer, TracerRenderer
     from .scenefile import ScenePlanError
 
-    defines = _defines(args.defines)
+    from tracer.cli import parse_defines
+
+    defines = parse_defines(args.defines)
     settings = Settings(passes=args.passes, spp=args.spp, seed=args.seed, alpha=args.alpha, size=args.size,
                         max_spp=args.max_spp)
     if args.renderer:
