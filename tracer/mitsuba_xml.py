@@ -1,7 +1,12 @@
-"""Loads the subset of Mitsuba 3's scene XML that the project's scenes use, with Mitsuba's semantics.
+"""Loads the subset of Mitsuba 3's scene XML that the tracer renders, with Mitsuba's semantics.
 
-Stdlib parsing only (expat, for line numbers). Anything outside the subset is refused before rendering
-with one line naming the file, the line, the element and what is supported.
+Stdlib parsing only (expat, for line numbers). `<include>` inlines another file, `<path>` adds a folder
+that files are looked up in, `<default>` declares a parameter (the first declaration wins; `-D` beats
+all), any plugin may be declared with an `id` and used through `<ref>`. Every property of every plugin
+is either honoured or refused by name: a property Mitsuba reads but the tracer does not implement is
+refused as unsupported, one that no plugin reads as unreferenced (Mitsuba refuses those too). Every
+refusal in a scene is reported at once, one line each naming the file, the line, the element and what
+is supported.
 """
 from __future__ import annotations
 
@@ -13,10 +18,12 @@ from xml.parsers import expat
 
 import numpy as np
 
-from . import transform
-from .meshes import MeshError, read_obj, vertex_normals
+from . import spectra, transform
 from .film import ReconstructionFilter
+from .ior import named_ior
+from .meshes import MeshError, read_obj, read_ply, vertex_normals
 from .scene import BSDF, Camera, Mesh, Rectangle, Scene, SceneError, Sphere
+from .serialized import read_serialized
 
 SUPPORTED = {
     "integrator": ("path",),
@@ -24,13 +31,47 @@ SUPPORTED = {
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian", "tent"),
     "sampler": ("independent",),
-    "shape": ("rectangle", "sphere", "obj"),
+    "shape": ("rectangle", "sphere", "obj", "ply", "serialized"),
     "bsdf": ("diffuse", "twosided", "conductor", "dielectric"),
     "emitter": ("area",),
 }
-FLOAT32_MAX = float(np.finfo(np.float32).max)
-PROPERTY_TAGS = ("integer", "float", "boolean", "string", "rgb", "point", "vector", "transform")
+PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf", "emitter", "texture",
+               "medium", "phase", "volume", "spectrum")
+PROPERTY_TAGS = ("integer", "float", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform")
+COLOUR_TAGS = ("float", "integer", "rgb", "spectrum")
 TRANSFORM_OPS = ("translate", "scale", "rotate", "matrix", "lookat")
+MAX_INCLUDE_DEPTH = 32
+
+# The parameters each supported plugin reads in Mitsuba 3 (its plugin source and documentation), so that a
+# parameter the tracer does not implement is refused as such rather than as a misspelling.
+MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
+    ("integrator", "path"): ("max_depth", "rr_depth", "hide_emitters", "block_size", "samples_per_pass",
+                             "timeout"),
+    ("sensor", "perspective"): ("to_world", "fov", "fov_axis", "focal_length", "near_clip", "far_clip",
+                                "focus_distance", "principal_point_offset_x", "principal_point_offset_y",
+                                "shutter_open", "shutter_close", "srf"),
+    ("film", "hdrfilm"): ("width", "height", "crop_offset_x", "crop_offset_y", "crop_width", "crop_height",
+                          "sample_border", "pixel_format", "component_format", "file_format", "compensate",
+                          "banner"),
+    ("rfilter", "box"): (),
+    ("rfilter", "gaussian"): ("stddev",),
+    ("rfilter", "tent"): ("radius",),
+    ("sampler", "independent"): ("sample_count", "seed"),
+    ("shape", "rectangle"): ("to_world", "flip_normals", "silhouette_sampling_weight"),
+    ("shape", "sphere"): ("center", "radius", "to_world", "flip_normals", "silhouette_sampling_weight"),
+    ("shape", "obj"): ("filename", "face_normals", "flip_normals", "flip_tex_coords", "to_world",
+                       "silhouette_sampling_weight"),
+    ("shape", "ply"): ("filename", "face_normals", "flip_normals", "flip_tex_coords", "to_world",
+                       "silhouette_sampling_weight"),
+    ("shape", "serialized"): ("filename", "shape_index", "face_normals", "flip_normals", "to_world",
+                              "silhouette_sampling_weight"),
+    ("bsdf", "diffuse"): ("reflectance",),
+    ("bsdf", "twosided"): ("allow_transmission",),
+    ("bsdf", "conductor"): ("material", "eta", "k", "specular_reflectance"),
+    ("bsdf", "dielectric"): ("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"),
+    ("emitter", "area"): ("radiance", "sampling_weight"),
+}
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 @dataclass
@@ -39,18 +80,27 @@ class Node:
     attrib: dict[str, str]
     line: int
     children: list["Node"] = field(default_factory=list)
+    file: Path | None = None
+
+
+class _Reported(SceneError):
+    """A failure already recorded in the context's error list (a shared object used a second time)."""
 
 
 class _Context:
-    def __init__(self, path: Path, params: dict[str, str]):
+    def __init__(self, path: Path, params: dict[str, str], resolver: list[Path] | None = None):
         self.path = path
         self.params = dict(params)
         self.used: set[str] = set()
         self.ids: dict[str, Node] = {}
+        self.resolver = resolver if resolver is not None else [path.parent]
+        self.errors: list[str] = []
+        self.built: dict[int, object] = {}
 
     def error(self, node: Node | None, message: str) -> SceneError:
-        where = f"{self.path}:{node.line}: <{node.tag}{_type_attr(node)}>" if node else f"{self.path}"
-        return SceneError(f"{where}: {message}")
+        if node is None:
+            return SceneError(f"{self.path}: {message}")
+        return SceneError(f"{node.file or self.path}:{node.line}: <{node.tag}{_type_attr(node)}>: {message}")
 
     def attr(self, node: Node, key: str, default: str | None = None) -> str:
         if key not in node.attrib:
@@ -69,6 +119,41 @@ class _Context:
 
         return re.sub(r"\$([A-Za-z_][A-Za-z0-9_]*)", repl, value)
 
+    def resolve(self, name: str, first: Path | None = None) -> Path:
+        """A file named in the scene, looked up like Mitsuba's file resolver: in `first`, then in the
+        folders of the scene's <path> elements (latest first), then beside the scene file."""
+        p = Path(name)
+        if p.is_absolute():
+            return p
+        for folder in ([first] if first else []) + self.resolver:
+            if (folder / p).exists():
+                return folder / p
+        return (first or self.resolver[-1]) / p
+
+    def attempt(self, build, *args, default=None):
+        """build(*args), recording a refusal instead of raising it, so that all are reported at once."""
+        try:
+            return build(*args)
+        except _Reported:
+            return default
+        except SceneError as e:
+            self.errors.append(str(e))
+            return default
+
+    def built_once(self, node: Node, build):
+        """An object declared once and used by several others is built (and refused) once."""
+        key = id(node)
+        if key not in self.built:
+            try:
+                self.built[key] = build(node)
+            except SceneError as e:
+                self.built[key] = e
+                raise
+        value = self.built[key]
+        if isinstance(value, SceneError):
+            raise _Reported(str(value))
+        return value
+
 
 def _type_attr(node: Node) -> str:
     return f" type=\"{node.attrib['type']}\"" if "type" in node.attrib else (
@@ -76,13 +161,13 @@ def _type_attr(node: Node) -> str:
 
 
 def parse_tree(path: Path) -> Node:
-    """The XML file as a tree of Nodes that remember their line numbers."""
+    """The XML file as a tree of Nodes that remember their file and line numbers."""
     stack: list[Node] = []
     root: list[Node] = []
     parser = expat.ParserCreate()
 
     def start(tag, attrib):
-        node = Node(tag, dict(attrib), parser.CurrentLineNumber)
+        node = Node(tag, dict(attrib), parser.CurrentLineNumber, file=path)
         (stack[-1].children if stack else root).append(node)
         stack.append(node)
 
@@ -105,87 +190,195 @@ def load_scene(path: str | Path, **overrides) -> Scene:
     """Reads a Mitsuba scene file; `overrides` replace `<default>` values exactly like `mitsuba -D`."""
     path = Path(path)
     root = parse_tree(path)
-    ctx = _Context(path, {})
+    ctx = _Context(path, {k: str(v) for k, v in overrides.items()})
     if root.tag != "scene":
         raise ctx.error(root, "the root element must be <scene>")
-    for node in root.children:
-        if node.tag == "default":
-            ctx.params[ctx.attr(node, "name")] = node.attrib.get("value", "")
-    ctx.params.update({k: str(v) for k, v in overrides.items()})
+    _expand(ctx, root, ctx.resolver, depth=0)
+    if ctx.errors:
+        raise SceneError("\n".join(ctx.errors))
     _collect_ids(ctx, root)
     scene = _build_scene(ctx, root)
     unused = [k for k in overrides if k not in ctx.used]
     if unused:
         declared = ", ".join(sorted(n for n in ctx.params if n in ctx.used)) or "none"
-        raise SceneError(f"{path}: -D {unused[0]}: the scene uses no parameter of that name (it uses: {declared})")
+        ctx.errors.append(f"{path}: -D {unused[0]}: the scene uses no parameter of that name (it uses: {declared})")
+    if ctx.errors:
+        raise SceneError("\n".join(dict.fromkeys(ctx.errors)))
     return scene
+
+
+# ---- <default>, <path>, <include> ---------------------------------------------------------------------
+def _expand(ctx: _Context, node: Node, resolver: list[Path], depth: int) -> None:
+    """Processes `node`'s <default>, <path> and <include> children in document order: defaults declare
+    parameters, paths extend `resolver` (only as children of a file's <scene>), includes are replaced by
+    the included file's elements."""
+    children: list[Node] = []
+    for child in node.children:
+        if child.tag == "default":
+            ctx.attempt(_default, ctx, child)
+        elif child.tag == "path":
+            if depth < 0:
+                ctx.errors.append(str(ctx.error(child, "<path> may only be a child of <scene>")))
+            else:
+                ctx.attempt(_path, ctx, child, resolver)
+        elif child.tag == "include":
+            children += ctx.attempt(_include, ctx, child, node, resolver, depth, default=[])
+        else:
+            _expand(ctx, child, resolver, -1)
+            children.append(child)
+    node.children = children
+
+
+def _default(ctx: _Context, node: Node) -> None:
+    name = ctx.attr(node, "name")
+    if not name:
+        raise ctx.error(node, "name must be non-empty")
+    ctx.params.setdefault(name, ctx.attr(node, "value"))
+
+
+def _path(ctx: _Context, node: Node, resolver: list[Path]) -> None:
+    value = ctx.attr(node, "value")
+    folder = Path(value)
+    if not folder.is_absolute():
+        folder = node.file.parent / value if (node.file.parent / value).exists() else ctx.resolve(value)
+    if not folder.is_dir():
+        raise ctx.error(node, f"folder '{value}' not found")
+    resolver.insert(0, folder)
+
+
+def _include(ctx: _Context, node: Node, parent: Node, resolver: list[Path], depth: int) -> list[Node]:
+    if depth >= MAX_INCLUDE_DEPTH:
+        raise ctx.error(node, f"includes nested deeper than {MAX_INCLUDE_DEPTH} (does a file include itself?)")
+    name = ctx.attr(node, "filename")
+    local = [node.file.parent] + resolver
+    file = next((f / name for f in local if (f / name).is_file()), None) if not Path(name).is_absolute() \
+        else Path(name)
+    if file is None or not file.is_file():
+        raise ctx.error(node, f"included file '{name}' not found (looked in {', '.join(map(str, local))})")
+    try:
+        root = parse_tree(file)
+    except SceneError as e:
+        raise ctx.error(node, f"while reading the included file: {e}") from None
+    if root.tag != "scene":
+        if "name" in node.attrib:
+            root.attrib.setdefault("name", node.attrib["name"])
+        _expand(ctx, root, list(local), -1)
+        return [root]
+    _expand(ctx, root, list(local), depth + 1)
+    return root.children
 
 
 def _collect_ids(ctx: _Context, node: Node) -> None:
     for child in node.children:
-        if "id" in child.attrib and child.tag in ("bsdf", "shape", "emitter", "texture"):
-            ctx.ids[child.attrib["id"]] = child
+        if "id" in child.attrib and child.tag in PLUGIN_TAGS:
+            name = child.attrib["id"]
+            if name in ctx.ids:
+                first = ctx.ids[name]
+                ctx.errors.append(str(ctx.error(child, f"duplicate id '{name}' (first declared at "
+                                                       f"{first.file}:{first.line})")))
+            else:
+                ctx.ids[name] = child
         _collect_ids(ctx, child)
 
 
-def _build_scene(ctx: _Context, root: Node) -> Scene:
-    camera, sampler_props, integrator = None, {}, {}
-    shapes: list[Node] = []
-    for node in root.children:
-        if node.tag in ("default", "bsdf"):
-            continue
-        if node.tag == "integrator":
-            _check_type(ctx, node)
-            integrator = _properties(ctx, node)
-        elif node.tag == "sensor":
-            _check_type(ctx, node)
-            camera, sampler_props = _camera(ctx, node)
-        elif node.tag == "shape":
-            shapes.append(node)
-        else:
-            raise ctx.error(node, "unsupported element; a scene may hold default, integrator, sensor, bsdf, shape")
-    if camera is None:
-        raise ctx.error(root, "the scene has no <sensor type=\"perspective\">")
-    scene = Scene(
-        camera=camera,
-        spp=int(sampler_props.get("sample_count", 4)),
-        seed=int(sampler_props.get("seed", 0)),
-        max_depth=int(integrator.get("max_depth", -1)),
-        rr_depth=int(integrator.get("rr_depth", 5)),
-        path=ctx.path,
-    )
-    if scene.spp < 1:
-        raise ctx.error(root, f"sample_count must be >= 1, got {scene.spp}")
-    for node in shapes:
-        _add_shape(ctx, scene, node)
-    return scene
+# ---- properties -------------------------------------------------------------------------------------
+class _Props:
+    """A plugin's properties and child objects. Reading one marks it used; finish() refuses the rest by
+    name, as Mitsuba refuses unreferenced properties."""
+
+    def __init__(self, ctx: _Context, node: Node, kind: str, emitter: bool = False):
+        self.ctx, self.node, self.kind, self.emitter = ctx, node, kind, emitter
+        self.values: dict[str, Node] = {}
+        self.objects: list[Node] = []
+        self.read: set[str] = set()
+        self.taken: set[int] = set()
+        for child in node.children:
+            if child.tag in PROPERTY_TAGS:
+                name = ctx.attr(child, "name")
+                if name in self.values:
+                    raise ctx.error(child, f"property '{name}' is given twice")
+                self.values[name] = child
+            elif child.tag in PLUGIN_TAGS or child.tag == "ref":
+                self.objects.append(child)
+            else:
+                raise ctx.error(child, f"unexpected element inside <{node.tag}>")
+
+    def has(self, name: str) -> bool:
+        return name in self.values
+
+    def get(self, name: str, default=None, tags: tuple[str, ...] | None = None):
+        """The value of property `name` (`default` when absent); `tags`: the element types accepted."""
+        child = self.values.get(name)
+        self.read.add(name)
+        if child is None:
+            return default
+        if tags is not None and child.tag not in tags:
+            raise self.ctx.error(child, f"property '{name}' must be given as <{'> or <'.join(tags)}>")
+        return _property_value(self.ctx, child, self.emitter)
+
+    def colour(self, name: str, default: float) -> np.ndarray:
+        """A reflectance or radiance: <rgb>, <spectrum>, <float>; a texture is refused."""
+        refs = [o for o in self.objects if o.attrib.get("name") == name]
+        if refs:
+            self.taken.add(id(refs[0]))
+            raise self.ctx.error(refs[0], f"'{name}' given by a texture or reference: unsupported; "
+                                          "supported: <rgb>, <spectrum>, <float>")
+        value = self.get(name, default, COLOUR_TAGS)
+        return np.broadcast_to(np.asarray(value, float), 3).copy()
+
+    def children(self, *tags: str) -> list[Node]:
+        """Child objects of the given element types, references resolved; marked used."""
+        out = []
+        for o in self.objects:
+            target = _resolve_ref(self.ctx, o) if o.tag == "ref" else o
+            if target.tag in tags:
+                self.taken.add(id(o))
+                out.append(target)
+        return out
+
+    def ignore(self, *names: str) -> None:
+        """Parameters that cannot change the image (scheduling, metadata, differentiable rendering)."""
+        self.read.update(names)
+
+    def finish(self) -> None:
+        documented = MITSUBA_PARAMETERS.get((self.node.tag, self.kind), ())
+        honoured = [n for n in documented if n in self.read]
+        for name, child in self.values.items():
+            if name in self.read:
+                continue
+            if name in documented:
+                message = f"'{name}' is not supported by the tracer"
+            else:
+                message = f"unreferenced property '{name}' (Mitsuba refuses it too)"
+            self.ctx.errors.append(str(self.ctx.error(
+                child, f"{message}; {self.node.tag} '{self.kind}' supported: {', '.join(honoured) or 'none'}")))
+        for o in self.objects:
+            if id(o) not in self.taken:
+                self.ctx.errors.append(str(self.ctx.error(
+                    o, f"unexpected <{o.tag}> inside <{self.node.tag} type=\"{self.kind}\">")))
 
 
-def _check_type(ctx: _Context, node: Node) -> str:
-    kind = ctx.attr(node, "type")
-    if kind not in SUPPORTED[node.tag]:
-        raise ctx.error(node, f"unsupported {node.tag} plugin '{kind}'; supported: {', '.join(SUPPORTED[node.tag])}")
-    return kind
+def _resolve_ref(ctx: _Context, node: Node) -> Node:
+    name = ctx.attr(node, "id")
+    target = ctx.ids.get(name)
+    if target is None:
+        raise ctx.error(node, f"no object with id '{name}'")
+    return target
 
 
-def _properties(ctx: _Context, node: Node, allowed_children: tuple[str, ...] = ()) -> dict:
-    """Named properties of an element: numbers, strings, booleans, colours, points and transforms."""
-    props: dict = {}
-    for child in node.children:
-        if child.tag in allowed_children:
-            continue
-        if child.tag not in PROPERTY_TAGS:
-            raise ctx.error(child, f"unexpected element inside <{node.tag}>")
-        props[ctx.attr(child, "name")] = _property_value(ctx, child)
-    return props
-
-
-def _property_value(ctx: _Context, node: Node):
+def _property_value(ctx: _Context, node: Node, emitter: bool = False):
     tag = node.tag
     if tag == "transform":
         return _transform(ctx, node)
     if tag in ("point", "vector") and "value" not in node.attrib:
         return np.array([_number(ctx, node, ctx.attr(node, k, "0")) for k in "xyz"])
+    if tag == "spectrum":
+        if "filename" in node.attrib or "type" in node.attrib:
+            raise ctx.error(node, "spectra from files or plugins are unsupported; supported: value=\"...\"")
+        try:
+            return spectra.to_rgb(ctx.attr(node, "value"), emitter)
+        except spectra.SpectrumError as e:
+            raise ctx.error(node, str(e)) from None
     value = ctx.attr(node, "value")
     if tag == "string":
         return value
@@ -224,6 +417,7 @@ def _numbers(ctx: _Context, node: Node, text: str) -> list[float]:
     return [_number(ctx, node, t) for t in text.replace(",", " ").split()]
 
 
+# ---- transforms -------------------------------------------------------------------------------------
 def _transform(ctx: _Context, node: Node) -> np.ndarray:
     m = np.eye(4)
     for op in node.children:
@@ -274,126 +468,318 @@ def _transform_op(ctx: _Context, op: Node) -> np.ndarray:
     return transform.lookat(o, t, u)
 
 
+# ---- the scene ----------------------------------------------------------------------------------------
+def _check_type(ctx: _Context, node: Node) -> str:
+    kind = ctx.attr(node, "type")
+    if kind not in SUPPORTED.get(node.tag, ()):
+        supported = ", ".join(SUPPORTED.get(node.tag, ())) or "none"
+        raise ctx.error(node, f"unsupported {node.tag} plugin '{kind}'; supported: {supported}")
+    return kind
+
+
+def _build_scene(ctx: _Context, root: Node) -> Scene | None:
+    integrators, sensors, shapes = [], [], []
+    for node in root.children:
+        if node.tag == "integrator":
+            integrators.append(node)
+        elif node.tag == "sensor":
+            sensors.append(node)
+        elif node.tag == "shape":
+            shapes.append(node)
+        elif node.tag in ("bsdf", "film", "rfilter", "sampler", "texture", "spectrum") and "id" in node.attrib:
+            ctx.attempt(_declared, ctx, node)        # used through <ref>; built (and checked) on their own
+        elif node.tag == "emitter" and "id" in node.attrib and _emitter_type(node) == "area":
+            ctx.attempt(_declared, ctx, node)        # an area light declared for a shape's <ref>
+        elif node.tag in PLUGIN_TAGS:
+            if ctx.attempt(_check_type, ctx, node) is not None:
+                ctx.errors.append(str(ctx.error(node, f"a top-level <{node.tag}> is unsupported; supported at the "
+                                                      "top level: integrator, sensor, shape, and plugins with an id")))
+        else:
+            ctx.errors.append(str(ctx.error(node, "unsupported element; a scene may hold default, path, include, "
+                                                  "integrator, sensor, shape and plugins with an id")))
+    for extra in integrators[1:]:
+        ctx.errors.append(str(ctx.error(extra, "only one integrator may be specified per scene (as in Mitsuba)")))
+    for extra in sensors[1:]:
+        ctx.errors.append(str(ctx.error(extra, "a second sensor: the tracer renders scenes with one sensor")))
+    integrator = ctx.attempt(_integrator, ctx, integrators[0], default={}) if integrators else {}
+    if not sensors:
+        ctx.errors.append(str(ctx.error(root, "the scene has no <sensor type=\"perspective\">")))
+        camera, sampler = None, {}
+    else:
+        camera, sampler = ctx.attempt(_camera, ctx, sensors[0], default=(None, {}))
+    scene = Scene(
+        camera=camera,
+        spp=int(sampler.get("sample_count", 4)),
+        seed=int(sampler.get("seed", 0)),
+        max_depth=int(integrator.get("max_depth", -1)),
+        rr_depth=int(integrator.get("rr_depth", 5)),
+        path=ctx.path,
+    )
+    for node in shapes:
+        ctx.attempt(_add_shape, ctx, scene, node)
+    return scene
+
+
+def _emitter_type(node: Node) -> str:
+    return node.attrib.get("type", "")
+
+
+def _declared(ctx: _Context, node: Node) -> None:
+    build = {"bsdf": _bsdf, "film": _film, "rfilter": _rfilter, "sampler": _sampler, "emitter": _area_light}
+    if node.tag not in build:
+        _check_type(ctx, node)
+        raise ctx.error(node, f"<{node.tag}> is unsupported")
+    ctx.built_once(node, lambda n: build[n.tag](ctx, n))
+
+
+def _integrator(ctx: _Context, node: Node) -> dict:
+    kind = _check_type(ctx, node)
+    props = _Props(ctx, node, kind)
+    out = {"max_depth": props.get("max_depth", -1, ("integer",)), "rr_depth": props.get("rr_depth", 5, ("integer",)),
+           "hide_emitters": props.get("hide_emitters", False, ("boolean",))}
+    props.ignore("block_size", "samples_per_pass")        # how work is scheduled: not the estimate
+    props.finish()
+    if out["hide_emitters"]:   # Mitsuba lets camera rays pass through area lights: not implemented
+        raise ctx.error(props.values["hide_emitters"], "hide_emitters = true is not supported by the tracer")
+    if out["max_depth"] < -1:
+        raise ctx.error(node, f"max_depth must be -1 (unbounded) or >= 0, got {out['max_depth']}")
+    if out["rr_depth"] < 1:
+        raise ctx.error(node, f"rr_depth must be >= 1, got {out['rr_depth']}")
+    return out
+
+
 def _camera(ctx: _Context, node: Node) -> tuple[Camera, dict]:
-    props = _properties(ctx, node, allowed_children=("film", "sampler"))
-    film, sampler = {"width": 768, "height": 576}, {}
-    for child in node.children:
-        if child.tag == "film":
-            _check_type(ctx, child)
-            for rf in (c for c in child.children if c.tag == "rfilter"):
-                film["rfilter"] = _rfilter(ctx, rf)
-            film.update(_properties(ctx, child, allowed_children=("rfilter",)))
-        elif child.tag == "sampler":
-            _check_type(ctx, child)
-            sampler = _properties(ctx, child)
-    fov_axis = props.get("fov_axis", "x")
-    if fov_axis not in ("x", "y", "diagonal", "smaller", "larger"):
-        raise ctx.error(node, f"fov_axis '{fov_axis}' unsupported; supported: x, y, diagonal, smaller, larger")
-    fov = float(props.get("fov", 90.0))
+    kind = _check_type(ctx, node)
+    props = _Props(ctx, node, kind)
+    films = props.children("film")
+    samplers = props.children("sampler")
+    film = ctx.built_once(films[0], lambda n: _film(ctx, n)) if films else _film_defaults(ctx, node)
+    sampler = ctx.built_once(samplers[0], lambda n: _sampler(ctx, n)) if samplers else {}
+    w, h = film["width"], film["height"]
+    if props.has("fov") and props.has("focal_length"):
+        raise ctx.error(node, "give either fov or focal_length, not both (as in Mitsuba)")
+    if props.has("fov"):
+        fov = props.get("fov", tags=("float", "integer"))
+        fov_axis = props.get("fov_axis", "x", ("string",)).lower()
+        if fov_axis not in ("x", "y", "diagonal", "smaller", "larger"):
+            raise ctx.error(node, f"fov_axis '{fov_axis}' unsupported; supported: x, y, diagonal, smaller, larger")
+    else:   # a 35 mm film (36 x 24 mm) behind a lens of this focal length; Mitsuba's default: 50mm
+        text = props.get("focal_length", "50mm", ("string",))
+        try:
+            f = float(text[:-2] if text.endswith("mm") else text)
+        except ValueError:
+            raise ctx.error(node, f"focal_length '{text}' is not of the form <x>mm") from None
+        if not f > 0:
+            raise ctx.error(node, f"focal_length must be positive, got {text}")
+        fov, fov_axis = 2.0 * math.degrees(math.atan(math.hypot(36.0, 24.0) / (2.0 * f))), "diagonal"
     if not 0 < fov < 180:
         raise ctx.error(node, f"fov must lie in (0, 180), got {fov}")
-    w, h = int(film["width"]), int(film["height"])
+    near, far = props.get("near_clip", 1e-2, ("float", "integer")), props.get("far_clip", 1e4, ("float", "integer"))
+    if not 0 < near < far:
+        raise ctx.error(node, f"near_clip must be positive and smaller than far_clip, got {near} and {far}")
+    props.get("focus_distance", tags=("float", "integer"))   # read by Mitsuba's projective cameras; a pinhole has no focus
+    for name in ("principal_point_offset_x", "principal_point_offset_y"):
+        if props.get(name, 0.0, ("float", "integer")) != 0:
+            raise ctx.error(props.values[name], f"{name} other than 0 is not supported by the tracer")
+    props.ignore("shutter_open", "shutter_close")    # nothing in the scene moves
+    to_world = props.get("to_world", np.eye(4), ("transform",))
+    props.finish()
+    camera = Camera(to_world, float(fov), fov_axis, float(near), float(far), w, h, film["rfilter"])
+    return camera, sampler
+
+
+def _film_defaults(ctx: _Context, node: Node) -> dict:
+    return {"width": 768, "height": 576, "rfilter": ReconstructionFilter("gaussian")}
+
+
+def _film(ctx: _Context, node: Node) -> dict:
+    kind = _check_type(ctx, node)
+    props = _Props(ctx, node, kind)
+    rfilters = props.children("rfilter")
+    rfilter = ctx.built_once(rfilters[0], lambda n: _rfilter(ctx, n)) if rfilters else ReconstructionFilter("gaussian")
+    w, h = props.get("width", 768, ("integer",)), props.get("height", 576, ("integer",))
     if w < 1 or h < 1:
         raise ctx.error(node, f"film size must be positive, got {w} x {h}")
-    camera = Camera(props.get("to_world", np.eye(4)), fov, fov_axis, float(props.get("near_clip", 1e-2)),
-                    float(props.get("far_clip", 1e4)), w, h, film.get("rfilter", ReconstructionFilter("gaussian")))
-    return camera, sampler
+    crop = {k: props.get(k, None, ("integer",)) for k in ("crop_offset_x", "crop_offset_y", "crop_width", "crop_height")}
+    full = {"crop_offset_x": 0, "crop_offset_y": 0, "crop_width": w, "crop_height": h}
+    for name, value in crop.items():
+        if value is not None and value != full[name]:
+            raise ctx.error(props.values[name], f"{name} = {value} (a film crop) is not supported by the tracer")
+    if props.get("sample_border", False, ("boolean",)):
+        raise ctx.error(props.values["sample_border"], "sample_border = true is not supported by the tracer")
+    # The tracer writes the film's RGB as float32 OpenEXR: formats that store the same RGB are accepted.
+    for name, accepted in (("pixel_format", ("rgb", "rgba")), ("component_format", ("float32",)),
+                           ("file_format", ("openexr", "exr"))):
+        value = props.get(name, accepted[0], ("string",))
+        if value.lower() not in accepted:
+            raise ctx.error(props.values[name], f"{name} '{value}' is not supported; supported: {', '.join(accepted)}")
+    props.ignore("banner", "compensate")     # metadata in the file; summation accuracy of the film
+    props.finish()
+    return {"width": w, "height": h, "rfilter": rfilter}
+
+
+def _sampler(ctx: _Context, node: Node) -> dict:
+    kind = _check_type(ctx, node)
+    props = _Props(ctx, node, kind)
+    out = {"sample_count": props.get("sample_count", 4, ("integer",)), "seed": props.get("seed", 0, ("integer",))}
+    props.finish()
+    if out["sample_count"] < 1:
+        raise ctx.error(node, f"sample_count must be >= 1, got {out['sample_count']}")
+    return out
 
 
 def _rfilter(ctx: _Context, node: Node) -> ReconstructionFilter:
     kind = _check_type(ctx, node)
-    props = _properties(ctx, node)
-    allowed = {"box": (), "gaussian": ("stddev",), "tent": ("radius",)}[kind]
-    for name in props:
-        if name not in allowed:
-            raise ctx.error(node, f"rfilter '{kind}' has no property '{name}'; supported: {', '.join(allowed) or 'none'}")
-    value = float(props.get(allowed[0], 0.5 if kind == "gaussian" else 1.0)) if allowed else 0.0
-    if allowed and not 0 < value <= 8:
-        raise ctx.error(node, f"rfilter '{kind}' {allowed[0]} must lie in (0, 8] pixels, got {value}")
+    props = _Props(ctx, node, kind)
+    if kind == "box":
+        props.finish()
+        return ReconstructionFilter("box")
+    name = "stddev" if kind == "gaussian" else "radius"
+    value = float(props.get(name, 0.5 if kind == "gaussian" else 1.0, ("float", "integer")))
+    props.finish()
+    if not 0 < value <= 8:
+        raise ctx.error(node, f"rfilter '{kind}' {name} must lie in (0, 8] pixels, got {value}")
     if kind == "gaussian":
         return ReconstructionFilter("gaussian", stddev=value)
-    return ReconstructionFilter("tent", tent_radius=value) if kind == "tent" else ReconstructionFilter("box")
+    return ReconstructionFilter("tent", tent_radius=value)
 
 
 def _bsdf(ctx: _Context, node: Node) -> BSDF:
-    if node.tag == "ref":
-        ref = ctx.ids.get(ctx.attr(node, "id"))
-        if ref is None or ref.tag != "bsdf":
-            raise ctx.error(node, f"no <bsdf> with id '{node.attrib.get('id')}'")
-        node = ref
     kind = _check_type(ctx, node)
+    props = _Props(ctx, node, kind)
     if kind == "twosided":
-        inner = [c for c in node.children if c.tag in ("bsdf", "ref")]
-        if len(inner) != 1:
-            raise ctx.error(node, "twosided wraps exactly one bsdf")
-        base = _bsdf(ctx, inner[0])
-        if base.kind != "diffuse":
-            raise ctx.error(node, "twosided supports a diffuse bsdf only")
-        return BSDF("diffuse", base.reflectance, twosided=True)
-    props = _properties(ctx, node)
+        inner = props.children("bsdf")
+        if props.get("allow_transmission", False, ("boolean",)):
+            raise ctx.error(props.values["allow_transmission"], "allow_transmission = true is not supported")
+        props.finish()
+        if len(inner) not in (1, 2):
+            raise ctx.error(node, "twosided wraps one bsdf (or two)")
+        bases = [ctx.built_once(b, lambda n: _bsdf(ctx, n)) for b in inner]
+        if any(b.kind != "diffuse" or b.twosided for b in bases):
+            raise ctx.error(node, "twosided supports one-sided diffuse bsdfs only")
+        if len(bases) == 2 and bases[0] != bases[1]:
+            raise ctx.error(node, "twosided with different front and back bsdfs is unsupported")
+        return BSDF("diffuse", bases[0].reflectance, twosided=True)
     if kind == "diffuse":
-        rho = np.broadcast_to(np.asarray(props.get("reflectance", 0.5), float), 3)
+        rho = props.colour("reflectance", 0.5)
+        props.finish()
         if np.any(rho < 0) or np.any(rho > 1):
             raise ctx.error(node, f"diffuse reflectance must lie in [0, 1], got {tuple(float(x) for x in rho)}")
         return BSDF("diffuse", tuple(float(x) for x in rho))
     if kind == "conductor":
-        if props.get("material", "none") != "none":
-            raise ctx.error(node, "only conductor material 'none' (a perfect mirror) is supported")
+        material = props.get("material", "none", ("string",))
+        if props.has("eta") or props.has("k") or material != "none":
+            props.read.update(("eta", "k"))
+            props.finish()
+            raise ctx.error(node, "only a perfect mirror (material 'none', no eta or k) is supported; "
+                                  "Fresnel conductors are not")
+        spec = props.colour("specular_reflectance", 1.0)
+        props.finish()
+        if np.any(spec != 1.0):
+            raise ctx.error(props.values["specular_reflectance"], "specular_reflectance other than 1 is unsupported")
         return BSDF("conductor", (1.0, 1.0, 1.0))
-    ior = {k: props.get(k, d) for k, d in (("int_ior", 1.5046), ("ext_ior", 1.000277))}
-    if not all(isinstance(v, float) for v in ior.values()):
-        raise ctx.error(node, "int_ior and ext_ior must be given as <float>")
+    ior = {k: _ior(ctx, props, k, d) for k, d in (("int_ior", "bk7"), ("ext_ior", "air"))}
+    for name in ("specular_reflectance", "specular_transmittance"):
+        if np.any(props.colour(name, 1.0) != 1.0):
+            raise ctx.error(props.values[name], f"{name} other than 1 is unsupported")
+    props.finish()
     if min(ior.values()) <= 0:
         raise ctx.error(node, "indices of refraction must be positive")
     return BSDF("dielectric", (1.0, 1.0, 1.0), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"])
 
 
+def _ior(ctx: _Context, props: _Props, name: str, default: str) -> float:
+    value = props.get(name, default, ("float", "integer", "string"))
+    if isinstance(value, str):
+        try:
+            return named_ior(value)
+        except KeyError as e:
+            raise ctx.error(props.values.get(name, props.node), e.args[0]) from None
+    return float(value)
+
+
+def _area_light(ctx: _Context, node: Node) -> tuple[float, float, float]:
+    kind = _check_type(ctx, node)
+    props = _Props(ctx, node, kind, emitter=True)
+    if props.has("to_world"):
+        raise ctx.error(props.values["to_world"], "an area light takes its shape's transform (Mitsuba refuses to_world)")
+    value = props.colour("radiance", 1.0)
+    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
+    props.finish()
+    if np.any(value < 0):
+        raise ctx.error(node, f"radiance must be non-negative, got {tuple(float(x) for x in value)}")
+    return tuple(float(x) for x in value)
+
+
 def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
     kind = _check_type(ctx, node)
-    props = _properties(ctx, node, allowed_children=("bsdf", "ref", "emitter"))
-    bsdfs = [c for c in node.children if c.tag in ("bsdf", "ref")]
-    radiance = None
-    for em in (c for c in node.children if c.tag == "emitter"):
-        _check_type(ctx, em)
-        value = _properties(ctx, em).get("radiance", np.ones(3))
-        value = np.broadcast_to(np.asarray(value, float), 3)
-        if np.any(value < 0):
-            raise ctx.error(em, f"radiance must be non-negative, got {tuple(float(x) for x in value)}")
-        radiance = tuple(float(x) for x in value)
-    # Mitsuba's default: diffuse 0.5, but black on an emitter shape.
-    bsdf = _bsdf(ctx, bsdfs[0]) if bsdfs else BSDF("diffuse", (0.0,) * 3 if radiance else (0.5,) * 3)
-    to_world = props.get("to_world", np.eye(4))
+    props = _Props(ctx, node, kind)
+    emitters = props.children("emitter")
+    bsdfs = props.children("bsdf")
+    if len(emitters) > 1 or len(bsdfs) > 1:
+        raise ctx.error(node, "a shape holds at most one bsdf and one emitter")
+    radiance = ctx.attempt(ctx.built_once, emitters[0], lambda n: _area_light(ctx, n)) if emitters else None
+    bsdf = ctx.attempt(ctx.built_once, bsdfs[0], lambda n: _bsdf(ctx, n)) if bsdfs else None
+    if bsdf is None:  # Mitsuba's default: diffuse 0.5, but black on an emitter shape
+        bsdf = BSDF("diffuse", (0.0,) * 3 if emitters else (0.5,) * 3)
+    to_world = props.get("to_world", np.eye(4), ("transform",))
+    flip = props.get("flip_normals", False, ("boolean",))
+    props.ignore("silhouette_sampling_weight", "flip_tex_coords")   # differentiable rendering; textures
     name = node.attrib.get("id", f"{kind}@{node.line}")
     if kind == "rectangle":
+        props.finish()
+        if flip:   # the normal is the image of local +z: mirror z, which leaves the rectangle in place
+            to_world = to_world @ np.diag([1.0, 1.0, -1.0, 1.0])
         scene.rectangles.append(Rectangle(to_world, bsdf, radiance, name))
     elif kind == "sphere":
-        if radiance is not None:
-            raise ctx.error(node, "area emitters are supported on rectangle and obj shapes only")
-        center = transform.apply_point(to_world, props.get("center", np.zeros(3)))[0]
-        radius = float(props.get("radius", 1.0)) * float(np.cbrt(abs(np.linalg.det(to_world[:3, :3]))))
+        center = props.get("center", np.zeros(3), ("point",))
+        radius = float(props.get("radius", 1.0, ("float", "integer")))
+        props.finish()
+        if flip:
+            raise ctx.error(props.values["flip_normals"], "flip_normals on a sphere is unsupported")
+        if emitters:
+            raise ctx.error(node, "area emitters are supported on rectangle and mesh shapes only")
+        linear = to_world[:3, :3]
+        scale = float(np.cbrt(abs(np.linalg.det(linear))))
+        if not np.allclose(linear.T @ linear, scale * scale * np.eye(3), rtol=1e-6, atol=0):
+            raise ctx.error(node, "a sphere's to_world must scale uniformly (no shear or non-uniform scale)")
+        center = transform.apply_point(to_world, center)[0]
+        radius *= scale
         if radius <= 0:
             raise ctx.error(node, f"sphere radius must be positive, got {radius}")
         scene.spheres.append(Sphere(center, radius, bsdf, name))
     else:
-        scene.meshes.append(_mesh(ctx, node, props, to_world, bsdf, radiance, name))
+        scene.meshes.append(_mesh(ctx, node, kind, props, to_world, flip, bsdf, radiance, name))
 
 
-def _mesh(ctx, node, props, to_world, bsdf, radiance, name) -> Mesh:
-    filename = props.get("filename")
+def _mesh(ctx, node, kind, props, to_world, flip, bsdf, radiance, name) -> Mesh:
+    filename = props.get("filename", None, ("string",))
+    face_normals = props.get("face_normals", False, ("boolean",))
+    shape_index = props.get("shape_index", 0, ("integer",)) if kind == "serialized" else 0
+    props.finish()
     if not filename:
-        raise ctx.error(node, "obj shape needs a <string name=\"filename\">")
-    file = (ctx.path.parent / filename)
+        raise ctx.error(node, f"{kind} shape needs a <string name=\"filename\">")
+    file = ctx.resolve(filename)
     if not file.is_file():
-        raise ctx.error(node, f"mesh file '{filename}' not found (looked in {file.parent})")
+        raise ctx.error(node, f"mesh file '{filename}' not found (looked in {', '.join(map(str, ctx.resolver))})")
     try:
-        vertices, faces, normals = read_obj(file)
+        if kind == "obj":
+            vertices, faces, normals = read_obj(file)
+        elif kind == "ply":
+            vertices, faces, normals = read_ply(file)
+        else:
+            if shape_index < 0:
+                raise ctx.error(node, f"shape_index must be non-negative, got {shape_index}")
+            vertices, faces, normals = read_serialized(file, shape_index)
     except MeshError as e:
         raise ctx.error(node, str(e)) from None
     vertices = transform.apply_point(to_world, vertices)
-    if props.get("face_normals", False):
+    if flip:     # reversed winding flips the face normals
+        faces = faces[:, ::-1]
+    if face_normals:
         normals = None
     elif normals is None:
         normals = vertex_normals(vertices, faces)
     else:
-        normals = transform.apply_normal(to_world, normals)
+        normals = transform.apply_normal(to_world, normals) * (-1.0 if flip else 1.0)
     return Mesh(vertices, faces, bsdf, normals, radiance, name)
