@@ -668,11 +668,12 @@ def _bsdf(ctx: _Context, node: Node) -> BSDF:
         return BSDF("diffuse", tuple(float(x) for x in rho))
     if kind == "conductor":
         material = props.get("material", "none", ("string",))
-        if props.has("eta") or props.has("k") or material != "none":
+        given = [n for n in ("eta", "k") if props.has(n)] + ([f"material '{material}'"] if material != "none" else [])
+        if given:
             props.read.update(("eta", "k"))
             props.finish()
-            raise ctx.error(node, "only a perfect mirror (material 'none', no eta or k) is supported; "
-                                  "Fresnel conductors are not")
+            raise ctx.error(node, f"{', '.join(given)}: Fresnel conductors are unsupported; supported: a perfect "
+                                  "mirror (material 'none', no eta or k)")
         spec = props.colour("specular_reflectance", 1.0)
         props.finish()
         if np.any(spec != 1.0):
