@@ -74,12 +74,12 @@ EXPECTED = {
     "shape": {"to_world": HONOURED, "flip_normals": HONOURED, "silhouette_sampling_weight": NO_EFFECT,
               "center": HONOURED, "radius": HONOURED, "filename": HONOURED, "face_normals": HONOURED,
               "flip_tex_coords": NO_EFFECT, "shape_index": HONOURED},
-    "bsdf": {"reflectance": HONOURED, "allow_transmission": REFUSED, "material": REFUSED, "eta": REFUSED,
-             "k": REFUSED, "specular_reflectance": REFUSED, "specular_transmittance": REFUSED, "int_ior": HONOURED,
+    "bsdf": {"reflectance": HONOURED, "allow_transmission": REFUSED, "material": HONOURED, "eta": HONOURED,
+             "k": HONOURED, "specular_reflectance": HONOURED, "specular_transmittance": REFUSED, "int_ior": HONOURED,
              "ext_ior": HONOURED},
     "emitter": {"radiance": HONOURED, "sampling_weight": NO_EFFECT},
 }
-SPECIAL = {("shape", "sphere", "flip_normals"): REFUSED}
+SPECIAL = {("shape", "sphere", "flip_normals"): REFUSED, ("bsdf", "dielectric", "specular_reflectance"): REFUSED}
 
 
 def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:

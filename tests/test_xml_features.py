@@ -203,11 +203,11 @@ REFUSED = [
     ('<shape type="rectangle"><bsdf type="diffuse">\n<rgb name="reflectanse" value="0.2"/></bsdf></shape>',
      "reflectanse", "unreferenced property 'reflectanse'"),
     ('<shape type="rectangle"><bsdf type="conductor">\n<rgb name="eta" value="0.2, 0.9, 1.1"/>'
-     '<rgb name="k" value="3.9, 2.4, 2.2"/></bsdf></shape>', 'type="conductor"', "eta, k: Fresnel conductors"),
-    ('<shape type="rectangle"><bsdf type="conductor">\n<string name="material" value="Au"/></bsdf></shape>',
-     'type="conductor"', "material 'Au': Fresnel conductors"),
-    ('<shape type="rectangle"><bsdf type="conductor">\n<rgb name="specular_reflectance" value="0.5"/></bsdf>'
-     '</shape>', "specular_reflectance", "specular_reflectance other than 1"),
+     '<string name="material" value="Au"/></bsdf></shape>', 'type="conductor"', "either eta and k or a material"),
+    ('<shape type="rectangle"><bsdf type="conductor">\n<string name="material" value="Gold"/></bsdf></shape>',
+     '"Gold"', "no conductor named 'Gold'"),
+    ('<shape type="rectangle"><bsdf type="conductor">\n<rgb name="specular_reflectance" value="1.5"/></bsdf>'
+     '</shape>', 'type="conductor"', "specular_reflectance must lie in [0, 1]"),
     ('<integrator type="path">\n<boolean name="hide_emitters" value="true"/></integrator>', "hide_emitters",
      "hide_emitters = true is not supported"),
     ('<shape type="rectangle"><emitter type="area">\n<float name="scale" value="2"/></emitter></shape>',

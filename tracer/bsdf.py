@@ -1,4 +1,5 @@
-"""Surface scattering with Mitsuba's semantics: Lambertian diffuse, perfect mirror, smooth dielectric."""
+"""Surface scattering with Mitsuba's semantics: Lambertian diffuse, smooth conductor (exact Fresnel),
+smooth dielectric."""
 import drjit as dr
 
 from .jit import Array3f, Float
@@ -50,3 +51,18 @@ def dielectric_interface(d: Array3f, n: Array3f, int_ior: Float, ext_ior: Float)
     reflected = reflect(d, n_facing)
     refracted = refract(d, n_facing, cos_i, cos_t, ratio)
     return f, reflected, refracted, ratio * ratio
+
+
+def fresnel_conductor(cos_i: Float, eta: Array3f, k: Array3f) -> Array3f:
+    """Exact unpolarised Fresnel reflectance of a conductor of complex relative index eta + i k, per channel,
+    for light arriving at cos_i > 0 (the s and p terms of Moeller's "Optics", as Mitsuba evaluates them)."""
+    cos2 = cos_i * cos_i
+    sin2 = 1.0 - cos2
+    t1 = eta * eta - k * k - sin2
+    a2_plus_b2 = dr.safe_sqrt(t1 * t1 + 4.0 * k * k * eta * eta)
+    a = dr.safe_sqrt(0.5 * (a2_plus_b2 + t1))
+    term1, term2 = a2_plus_b2 + cos2, 2.0 * cos_i * a
+    r_s = (term1 - term2) / (term1 + term2)
+    term3, term4 = a2_plus_b2 * cos2 + sin2 * sin2, term2 * sin2
+    r_p = r_s * (term3 - term4) / (term3 + term4)
+    return 0.5 * (r_s + r_p)

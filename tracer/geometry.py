@@ -11,6 +11,7 @@ import drjit as dr
 import numpy as np
 
 from . import intersect
+from .bsdf import fresnel_conductor
 from .bvh import BVHKernel
 from .jit import INF, NO_PRIM, Array3f, Bool, Float, UInt32, vec3
 from .sampling import square_to_uniform_triangle
@@ -67,6 +68,8 @@ class SceneGeometry:
         self.n_prims = self.sphere_base + len(self.spheres)
         self.materials: list[BSDF] = scene.bsdfs
         self.kinds = {_KIND_CODE[b.kind] for b in self.materials}
+        # conductors other than perfect mirrors need their Fresnel term; without them the kernel has none
+        self.fresnel_conductors = any(b.kind == "conductor" and not b.perfect_mirror for b in self.materials)
         self.emitters = scene.emitters
         self.smooth = any(m.normals is not None for m in scene.meshes)
         self.bvh = BVHKernel(self.tri_vertices, self.n_rects) if self.n_tris > BVH_THRESHOLD else None
@@ -114,6 +117,8 @@ class SceneGeometry:
         self.mat_twosided = UInt32([int(b.twosided) for b in materials])
         self.mat_int_ior = Float([b.int_ior for b in materials])
         self.mat_ext_ior = Float([b.ext_ior for b in materials])
+        self.mat_eta = Float(np.array([b.eta for b in materials]).ravel())
+        self.mat_k = Float(np.array([b.k for b in materials]).ravel())
 
     def _emitter_prim_ranges(self) -> list[tuple[int, int]]:
         return [self.prim_range(e) for e in self.emitters]
@@ -260,6 +265,15 @@ class SceneGeometry:
         if not any(b.twosided for b in self.materials):
             return Bool(False)
         return dr.gather(UInt32, self.mat_twosided, material, active) != 0
+
+    def conductor_weight(self, material: UInt32, cos_i: Float, active: Bool) -> Array3f:
+        """A conductor's reflected weight: its specular reflectance times the Fresnel reflectance at cos_i
+        (exactly 1 in a scene whose conductors are all perfect mirrors)."""
+        if not self.fresnel_conductors:
+            return Array3f(1.0)
+        eta = dr.gather(Array3f, self.mat_eta, material, active)
+        k = dr.gather(Array3f, self.mat_k, material, active)
+        return self.albedo(material, active) * fresnel_conductor(cos_i, eta, k)
 
     def iors(self, material: UInt32, active: Bool) -> tuple[Float, Float]:
         return (dr.gather(Float, self.mat_int_ior, material, active),

@@ -20,7 +20,7 @@ import numpy as np
 
 from . import spectra, transform
 from .film import ReconstructionFilter
-from .ior import named_ior
+from .ior import named_conductor, named_ior
 from .meshes import MeshError, read_obj, read_ply, vertex_normals
 from .scene import BSDF, Camera, Mesh, Rectangle, Scene, SceneError, Sphere
 from .serialized import read_serialized
@@ -316,13 +316,18 @@ class _Props:
             raise self.ctx.error(child, f"property '{name}' must be given as <{'> or <'.join(tags)}>")
         return _property_value(self.ctx, child, self.emitter)
 
-    def colour(self, name: str, default: float) -> np.ndarray:
-        """A reflectance or radiance: <rgb>, <spectrum>, <float>; a texture is refused."""
+    def colour(self, name: str, default: float, unbounded: bool = False) -> np.ndarray:
+        """A reflectance, a radiance (on an emitter) or an `unbounded` quantity such as a conductor's eta:
+        <rgb>, <spectrum>, <float>; a texture is refused."""
         refs = [o for o in self.objects if o.attrib.get("name") == name]
         if refs:
             self.taken.add(id(refs[0]))
             raise self.ctx.error(refs[0], f"'{name}' given by a texture or reference: unsupported; "
                                           "supported: <rgb>, <spectrum>, <float>")
+        child = self.values.get(name)
+        if child is not None and child.tag == "spectrum" and unbounded:
+            self.read.add(name)
+            return _property_value(self.ctx, child, emitter=False, unbounded=True)
         value = self.get(name, default, COLOUR_TAGS)
         return np.broadcast_to(np.asarray(value, float), 3).copy()
 
@@ -366,7 +371,7 @@ def _resolve_ref(ctx: _Context, node: Node) -> Node:
     return target
 
 
-def _property_value(ctx: _Context, node: Node, emitter: bool = False):
+def _property_value(ctx: _Context, node: Node, emitter: bool = False, unbounded: bool = False):
     tag = node.tag
     if tag == "transform":
         return _transform(ctx, node)
@@ -376,7 +381,7 @@ def _property_value(ctx: _Context, node: Node, emitter: bool = False):
         if "filename" in node.attrib or "type" in node.attrib:
             raise ctx.error(node, "spectra from files or plugins are unsupported; supported: value=\"...\"")
         try:
-            return spectra.to_rgb(ctx.attr(node, "value"), emitter)
+            return spectra.to_rgb(ctx.attr(node, "value"), emitter, unbounded)
         except spectra.SpectrumError as e:
             raise ctx.error(node, str(e)) from None
     value = ctx.attr(node, "value")
@@ -668,17 +673,20 @@ def _bsdf(ctx: _Context, node: Node) -> BSDF:
         return BSDF("diffuse", tuple(float(x) for x in rho))
     if kind == "conductor":
         material = props.get("material", "none", ("string",))
-        given = [n for n in ("eta", "k") if props.has(n)] + ([f"material '{material}'"] if material != "none" else [])
-        if given:
-            props.read.update(("eta", "k"))
-            props.finish()
-            raise ctx.error(node, f"{', '.join(given)}: Fresnel conductors are unsupported; supported: a perfect "
-                                  "mirror (material 'none', no eta or k)")
+        if props.has("eta") or material == "none":
+            if material != "none":
+                raise ctx.error(node, "give either eta and k or a material, not both (as in Mitsuba)")
+            eta, k = props.colour("eta", 0.0, unbounded=True), props.colour("k", 1.0, unbounded=True)
+        else:
+            try:
+                eta, k = (np.array(v) for v in named_conductor(material))
+            except KeyError as e:
+                raise ctx.error(props.values["material"], e.args[0]) from None
         spec = props.colour("specular_reflectance", 1.0)
         props.finish()
-        if np.any(spec != 1.0):
-            raise ctx.error(props.values["specular_reflectance"], "specular_reflectance other than 1 is unsupported")
-        return BSDF("conductor", (1.0, 1.0, 1.0))
+        if np.any(spec < 0) or np.any(spec > 1):
+            raise ctx.error(node, f"specular_reflectance must lie in [0, 1], got {tuple(float(x) for x in spec)}")
+        return BSDF("conductor", _rgb(spec), eta=_rgb(eta), k=_rgb(k))
     ior = {k: _ior(ctx, props, k, d) for k, d in (("int_ior", "bk7"), ("ext_ior", "air"))}
     for name in ("specular_reflectance", "specular_transmittance"):
         if np.any(props.colour(name, 1.0) != 1.0):
@@ -687,6 +695,10 @@ def _bsdf(ctx: _Context, node: Node) -> BSDF:
     if min(ior.values()) <= 0:
         raise ctx.error(node, "indices of refraction must be positive")
     return BSDF("dielectric", (1.0, 1.0, 1.0), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"])
+
+
+def _rgb(value: np.ndarray) -> tuple[float, float, float]:
+    return tuple(float(x) for x in value)
 
 
 def _ior(ctx: _Context, props: _Props, name: str, default: str) -> float:

@@ -20,18 +20,22 @@ class SceneError(ValueError):
 
 @dataclass(frozen=True)
 class BSDF:
-    """`diffuse` (Lambertian, one-sided unless `twosided`), `conductor` (perfect mirror) or `dielectric`."""
+    """`diffuse` (Lambertian, one-sided unless `twosided`), `conductor` (smooth: `reflectance` times the exact
+    Fresnel reflectance of the complex index eta + i k; eta 0, k 1 is a perfect mirror) or `dielectric`."""
 
     kind: str
     reflectance: tuple[float, float, float] = (0.5, 0.5, 0.5)
     twosided: bool = False
     int_ior: float = 1.5046
     ext_ior: float = 1.000277
+    eta: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    k: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     @property
-    def eta(self) -> float:
-        """Relative index of refraction int_ior / ext_ior."""
-        return self.int_ior / self.ext_ior
+    def perfect_mirror(self) -> bool:
+        """A conductor that reflects everything at every angle (Fresnel reflectance 1, reflectance 1)."""
+        return self.eta == (0.0, 0.0, 0.0) and self.k == (1.0, 1.0, 1.0) and self.reflectance == (1.0, 1.0, 1.0)
+
 
 
 @dataclass(eq=False)

@@ -122,8 +122,10 @@ def list_to_srgb(wavelengths: np.ndarray, values: np.ndarray, bounded: bool, ill
     return np.clip(rgb, 0.0, 1.0) if bounded else np.maximum(rgb, 0.0)
 
 
-def to_rgb(text: str, emitter: bool) -> np.ndarray:
-    """A `<spectrum value="...">` as the RGB Mitsuba's RGB variants use: a reflectance unless `emitter`."""
+def to_rgb(text: str, emitter: bool, unbounded: bool = False) -> np.ndarray:
+    """A `<spectrum value="...">` as the RGB Mitsuba's RGB variants use: a reflectance unless `emitter`;
+    an `unbounded` quantity (a conductor's eta or k) is D65-weighted like a reflectance but not clamped
+    above 1."""
     if ":" not in text:
         try:
             value = float(text)
@@ -133,4 +135,4 @@ def to_rgb(text: str, emitter: bool) -> np.ndarray:
             raise SpectrumError(f"'{text}' is not a finite number")
         return value * XYZ_TO_SRGB.sum(axis=1) if emitter else np.full(3, value)
     wavelengths, values = parse_pairs(text)
-    return list_to_srgb(wavelengths, values, bounded=not emitter, illuminant=not emitter)
+    return list_to_srgb(wavelengths, values, bounded=not (emitter or unbounded), illuminant=not emitter)

@@ -79,7 +79,7 @@ def _vertex(geo, rng, L, beta, eta, o, d, t_min, t_max, skip, prev_delta, prev_p
     if CONDUCTOR in geo.kinds:
         is_mirror = active_next & (kind == CONDUCTOR) & (dr.dot(surf.ns, wi) > 0)
         new_d = dr.select(is_mirror, reflect(d, surf.ns), new_d)
-        weight = dr.select(is_mirror, Array3f(1.0), weight)
+        weight = dr.select(is_mirror, geo.conductor_weight(surf.material, dr.dot(surf.ns, wi), is_mirror), weight)
         delta |= is_mirror
 
     if DIELECTRIC in geo.kinds:

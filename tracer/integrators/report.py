@@ -159,8 +159,10 @@ def _spawn(geo, surf, ns, diffuse, kind, wave, vertex, max_depth, settings, seed
         factor = dr.select(is_diffuse, f * (1.0 / settings.indirect), factor)
     if CONDUCTOR in geo.kinds:
         is_mirror = k == CONDUCTOR
-        new_d = dr.select(is_mirror, reflect(d, dr.gather(Array3f, surf.ns, parent)), new_d)
-        factor = dr.select(is_mirror, Array3f(1.0), factor)
+        n_mirror = dr.gather(Array3f, surf.ns, parent)
+        new_d = dr.select(is_mirror, reflect(d, n_mirror), new_d)
+        weight_mirror = geo.conductor_weight(dr.gather(UInt32, surf.material, parent), -dr.dot(n_mirror, d), is_mirror)
+        factor = dr.select(is_mirror, weight_mirror, factor)
     if DIELECTRIC in geo.kinds:
         is_glass = k == DIELECTRIC
         int_ior, ext_ior = geo.iors(dr.gather(UInt32, surf.material, parent), is_glass)
