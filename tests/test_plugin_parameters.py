@@ -77,7 +77,7 @@ EXPECTED = {
     "bsdf": {"reflectance": HONOURED, "allow_transmission": REFUSED, "material": HONOURED, "eta": HONOURED,
              "k": HONOURED, "specular_reflectance": HONOURED, "specular_transmittance": REFUSED, "int_ior": HONOURED,
              "ext_ior": HONOURED},
-    "emitter": {"radiance": HONOURED, "sampling_weight": NO_EFFECT},
+    "emitter": {"radiance": HONOURED, "sampling_weight": NO_EFFECT, "to_world": NO_EFFECT},   # constant: uniform
 }
 SPECIAL = {("shape", "sphere", "flip_normals"): REFUSED, ("bsdf", "dielectric", "specular_reflectance"): REFUSED}
 
@@ -108,6 +108,8 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
     elif tag == "bsdf":
         inner = '<bsdf type="diffuse"/>' if kind == "twosided" else ""
         body = f'<shape type="rectangle"><bsdf type="{kind}">{inner}{p}</bsdf></shape>'
+    elif kind == "constant":
+        body = f'<emitter type="{kind}">{p}</emitter>'
     else:
         body = f'<shape type="rectangle"><emitter type="{kind}">{p}</emitter></shape>'
     return header, body
@@ -123,7 +125,7 @@ def _fingerprint(s) -> bytes:
                          [(r.to_world.tolist(), r.bsdf, r.radiance) for r in s.rectangles],
                          [(m.vertices.tolist(), m.faces.tolist(), None if m.normals is None else m.normals.tolist(),
                            m.bsdf, m.radiance) for m in s.meshes],
-                         [(x.center.tolist(), x.radius, x.bsdf) for x in s.spheres]))
+                         [(x.center.tolist(), x.radius, x.bsdf) for x in s.spheres], s.environment))
 
 
 def _outcome(tmp_path, tag, kind, param) -> str:

@@ -14,7 +14,7 @@ from . import intersect
 from .bsdf import fresnel_conductor
 from .bvh import BVHKernel
 from .jit import INF, NO_PRIM, Array3f, Bool, Float, UInt32, vec3
-from .sampling import square_to_uniform_triangle
+from .sampling import square_to_uniform_sphere, square_to_uniform_triangle
 from .scene import BSDF, Mesh, Rectangle, Scene
 
 DIFFUSE, CONDUCTOR, DIELECTRIC = 0, 1, 2
@@ -71,6 +71,10 @@ class SceneGeometry:
         # conductors other than perfect mirrors need their Fresnel term; without them the kernel has none
         self.fresnel_conductors = any(b.kind == "conductor" and not b.perfect_mirror for b in self.materials)
         self.emitters = scene.emitters
+        self.environment = scene.environment
+        # lights a shadow ray may be sent to, chosen uniformly: the area lights, then the environment
+        self.n_lights = len(self.emitters) + (self.environment is not None)
+        self.has_lights = self.n_lights > 0
         self.smooth = any(m.normals is not None for m in scene.meshes)
         self.bvh = BVHKernel(self.tri_vertices, self.n_rects) if self.n_tris > BVH_THRESHOLD else None
         self.occluders = self._possible_occluders()
@@ -101,7 +105,7 @@ class SceneGeometry:
             lo, hi = self._prim_ranges[k]
             area = e.area if isinstance(e, Rectangle) else e.triangle_areas.sum()
             radiance[lo:hi] = e.radiance
-            light_pdf[lo:hi] = 1.0 / (len(self.emitters) * area) if area > 0 else 0.0
+            light_pdf[lo:hi] = 1.0 / (self.n_lights * area) if area > 0 else 0.0
         self.prim_normal = Float(normals.ravel())
         self.prim_material = UInt32(material)
         self.prim_radiance = Float(radiance.ravel())
@@ -138,7 +142,10 @@ class SceneGeometry:
     def _possible_occluders(self) -> set[int]:
         """Primitives that can block a shadow ray. A shadow ray joins two points of the scene, so a planar
         primitive with the whole scene on one side of its plane (a wall of a convex room) never lies
-        strictly between its ends: such primitives are left out of the shadow-ray kernel."""
+        strictly between its ends: such primitives are left out of the shadow-ray kernel. Shadow rays to an
+        environment leave the scene, so with one every primitive may block."""
+        if self.environment is not None:
+            return set(range(self.n_prims))
         points = [self.tri_vertices.reshape(-1, 3)]
         points += [r.center + a * e1 + b * e2 for r in self.rects for e1, e2 in [r.edges]
                    for a in (-1, 1) for b in (-1, 1)]
@@ -281,30 +288,47 @@ class SceneGeometry:
 
     # ---- lights -----------------------------------------------------------------------------------
     def emitted(self, surf: Surface, wo: Array3f) -> Array3f:
-        """Radiance an area light emits towards wo: only on the side its normal faces."""
-        if not self.emitters:
+        """Radiance an area light emits towards wo: only on the side its normal faces; on a ray that hits
+        nothing, the environment's."""
+        if not self.has_lights:
             return Array3f(0.0)
-        le = dr.gather(Array3f, self.prim_radiance, surf.prim, surf.valid)
-        return dr.select(surf.valid & (dr.dot(surf.ns, wo) > 0), le, Array3f(0.0))
+        le = Array3f(0.0)
+        if self.emitters:
+            le = dr.gather(Array3f, self.prim_radiance, surf.prim, surf.valid)
+            le = dr.select(surf.valid & (dr.dot(surf.ns, wo) > 0), le, Array3f(0.0))
+        if self.environment is not None:
+            le = dr.select(surf.valid, le, vec3(self.environment))
+        return le
 
     def light_pdf_area(self, surf: Surface) -> Float:
         """Area density with which sample_light picks this point (0 off the lights)."""
         return dr.gather(Float, self.prim_light_pdf, surf.prim, surf.valid)
 
+    @property
+    def environment_pdf(self) -> float:
+        """Solid-angle density with which sample_light picks a direction to the environment."""
+        return 1.0 / (self.n_lights * 4.0 * np.pi)
+
     def sample_light(self, u_select: Float, u1: Float, u2: Float) -> LightSample:
-        """A light chosen uniformly, then a point uniform in area on it."""
-        n_em = len(self.emitters)
-        index = dr.minimum(UInt32(u_select * n_em), n_em - 1)
+        """A light chosen uniformly, then a point uniform in area on it; for the environment, a direction
+        uniform on the sphere, returned as y (with n = -y, prim = NO_PRIM and pdf_area its solid-angle
+        density)."""
+        n_lights = self.n_lights
+        index = dr.minimum(UInt32(u_select * n_lights), n_lights - 1)
         out = None
         for k, e in enumerate(self.emitters):
             s = self._sample_rectangle(e, k, u1, u2) if isinstance(e, Rectangle) else self._sample_mesh(e, k, u1, u2)
             out = s if out is None else _select_sample(index == k, s, out)
+        if self.environment is not None:
+            d = square_to_uniform_sphere(u1, u2)
+            s = LightSample(d, -d, vec3(self.environment), Float(self.environment_pdf), UInt32(NO_PRIM))
+            out = s if out is None else _select_sample(index == len(self.emitters), s, out)
         return out
 
     def _sample_rectangle(self, r: Rectangle, k: int, u1: Float, u2: Float) -> LightSample:
         e1, e2 = r.edges
         y = vec3(r.center) + vec3(e1) * (2.0 * u1 - 1.0) + vec3(e2) * (2.0 * u2 - 1.0)
-        pdf = 1.0 / (len(self.emitters) * r.area)
+        pdf = 1.0 / (self.n_lights * r.area)
         return LightSample(y, vec3(r.normal), vec3(r.radiance), Float(pdf), UInt32(self._prim_ranges[k][0]))
 
     def _sample_mesh(self, m: Mesh, k: int, u1: Float, u2: Float) -> LightSample:
@@ -324,7 +348,7 @@ class SceneGeometry:
         if m.normals is not None:
             cn = [dr.gather(Array3f, self.corner_normals, (prim - self.n_rects) * 3 + c) for c in range(3)]
             n = dr.normalize(cn[0] * (1.0 - b1 - b2) + cn[1] * b1 + cn[2] * b2)
-        pdf = 1.0 / (len(self.emitters) * areas.sum())
+        pdf = 1.0 / (self.n_lights * areas.sum())
         return LightSample(y, n, vec3(m.radiance), Float(pdf), prim)
 
     def describe(self) -> list[str]:
@@ -334,7 +358,8 @@ class SceneGeometry:
                  f"(Moeller-Trumbore, {tris}), {len(self.spheres)} spheres (quadratic)"]
         lines.append(f"shading normals: {'interpolated on smooth meshes' if self.smooth else 'geometric only'}")
         lines.append(f"materials: {', '.join(sorted({b.kind for b in self.materials}))}")
-        lines.append(f"light sampling: {len(self.emitters)} area light(s)")
+        env = " and a constant environment" if self.environment is not None else ""
+        lines.append(f"light sampling: {len(self.emitters)} area light(s){env}")
         return lines
 
 

@@ -33,7 +33,7 @@ SUPPORTED = {
     "sampler": ("independent",),
     "shape": ("rectangle", "sphere", "obj", "ply", "serialized"),
     "bsdf": ("diffuse", "twosided", "conductor", "dielectric"),
-    "emitter": ("area",),
+    "emitter": ("area", "constant"),
 }
 PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf", "emitter", "texture",
                "medium", "phase", "volume", "spectrum")
@@ -70,6 +70,7 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("bsdf", "conductor"): ("material", "eta", "k", "specular_reflectance"),
     ("bsdf", "dielectric"): ("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"),
     ("emitter", "area"): ("radiance", "sampling_weight"),
+    ("emitter", "constant"): ("radiance", "sampling_weight", "to_world"),
 }
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 
@@ -483,7 +484,7 @@ def _check_type(ctx: _Context, node: Node) -> str:
 
 
 def _build_scene(ctx: _Context, root: Node) -> Scene | None:
-    integrators, sensors, shapes = [], [], []
+    integrators, sensors, shapes, environments = [], [], [], []
     for node in root.children:
         if node.tag == "integrator":
             integrators.append(node)
@@ -495,6 +496,8 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
             ctx.attempt(_declared, ctx, node)        # used through <ref>; built (and checked) on their own
         elif node.tag == "emitter" and "id" in node.attrib and _emitter_type(node) == "area":
             ctx.attempt(_declared, ctx, node)        # an area light declared for a shape's <ref>
+        elif node.tag == "emitter" and _emitter_type(node) == "constant":
+            environments.append(node)
         elif node.tag in PLUGIN_TAGS:
             if ctx.attempt(_check_type, ctx, node) is not None:
                 ctx.errors.append(str(ctx.error(node, f"a top-level <{node.tag}> is unsupported; supported at the "
@@ -504,6 +507,8 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
                                                   "integrator, sensor, shape and plugins with an id")))
     for extra in integrators[1:]:
         ctx.errors.append(str(ctx.error(extra, "only one integrator may be specified per scene (as in Mitsuba)")))
+    for extra in environments[1:]:
+        ctx.errors.append(str(ctx.error(extra, "only one environment emitter may be specified per scene (as in Mitsuba)")))
     for extra in sensors[1:]:
         ctx.errors.append(str(ctx.error(extra, "a second sensor: the tracer renders scenes with one sensor")))
     integrator = ctx.attempt(_integrator, ctx, integrators[0], default={}) if integrators else {}
@@ -518,6 +523,7 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
         seed=int(sampler.get("seed", 0)),
         max_depth=int(integrator.get("max_depth", -1)),
         rr_depth=int(integrator.get("rr_depth", 5)),
+        environment=ctx.attempt(_constant_light, ctx, environments[0]) if environments else None,
         path=ctx.path,
     )
     for node in shapes:
@@ -713,6 +719,8 @@ def _ior(ctx: _Context, props: _Props, name: str, default: str) -> float:
 
 def _area_light(ctx: _Context, node: Node) -> tuple[float, float, float]:
     kind = _check_type(ctx, node)
+    if kind != "area":
+        raise ctx.error(node, "a shape's emitter must be an 'area' light")
     props = _Props(ctx, node, kind, emitter=True)
     if props.has("to_world"):
         raise ctx.error(props.values["to_world"], "an area light takes its shape's transform (Mitsuba refuses to_world)")
@@ -722,6 +730,18 @@ def _area_light(ctx: _Context, node: Node) -> tuple[float, float, float]:
     if np.any(value < 0):
         raise ctx.error(node, f"radiance must be non-negative, got {tuple(float(x) for x in value)}")
     return tuple(float(x) for x in value)
+
+
+def _constant_light(ctx: _Context, node: Node) -> tuple[float, float, float]:
+    """Mitsuba's `constant` emitter: the same radiance arriving from every direction."""
+    props = _Props(ctx, node, _check_type(ctx, node), emitter=True)
+    value = props.colour("radiance", 1.0)
+    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
+    props.ignore("to_world")              # a uniform environment looks the same however it is turned
+    props.finish()
+    if np.any(value < 0):
+        raise ctx.error(node, f"radiance must be non-negative, got {tuple(float(x) for x in value)}")
+    return _rgb(value)
 
 
 def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:

@@ -29,6 +29,14 @@ def square_to_uniform_hemisphere(u1: Float, u2: Float) -> Array3f:
     return Array3f(r * c, r * s, z)
 
 
+def square_to_uniform_sphere(u1: Float, u2: Float) -> Array3f:
+    """Uniform direction on the unit sphere; density 1 / (4 pi)."""
+    z = 1.0 - 2.0 * u1
+    r = dr.safe_sqrt(1.0 - z * z)
+    s, c = dr.sincos(dr.two_pi * u2)
+    return Array3f(r * c, r * s, z)
+
+
 def uniform_hemisphere_pdf(cos_theta: Float) -> Float:
     return dr.select(cos_theta > 0, 1.0 / dr.two_pi, 0.0)
 

@@ -138,11 +138,19 @@ class Scene:
     seed: int = 0
     max_depth: int = -1
     rr_depth: int = 5
+    environment: tuple[float, float, float] | None = None   # a `constant` emitter's radiance, from all directions
     path: Path | None = None
 
     @property
     def emitters(self) -> list[Rectangle | Mesh]:
         return [s for s in (*self.rectangles, *self.meshes) if s.radiance is not None]
+
+    def estimator_refusals(self, estimator: str) -> list[str]:
+        """What the named estimator cannot render correctly in this scene, one line each (empty: nothing)."""
+        if estimator == "report" and self.environment is not None:
+            return [f"{self.path}: the report estimator does not render the 'constant' emitter (an environment); "
+                    "use --estimator path"]
+        return []
 
     @property
     def bsdfs(self) -> list[BSDF]:

@@ -7,7 +7,7 @@ import drjit as dr
 
 from ..bsdf import diffuse_brdf
 from ..geometry import SceneGeometry, Surface
-from ..jit import Array3f, Bool, Float
+from ..jit import INF, NO_PRIM, Array3f, Bool, Float
 
 
 def facing_normal(geo: SceneGeometry, surf: Surface, wi: Array3f) -> tuple[Array3f, Bool]:
@@ -31,14 +31,23 @@ class DirectSample:
 
 def sample_direct(geo: SceneGeometry, surf: Surface, ns: Array3f, albedo: Array3f,
                   u_select: Float, u1: Float, u2: Float, active: Bool) -> DirectSample:
-    """One shadow ray from a diffuse point to a point drawn uniformly on an area light (eq. 10)."""
+    """One shadow ray from a diffuse point to a point drawn uniformly on an area light (eq. 10), or along
+    a direction drawn uniformly towards the environment (at infinity: distance 1 and cos_y 1 in the
+    formulas, the shadow ray unbounded)."""
     ls = geo.sample_light(u_select, u1, u2)
     to_light = ls.y - surf.p
     dist2 = dr.squared_norm(to_light)
+    if geo.environment is not None:
+        infinite = ls.prim == NO_PRIM
+        to_light = dr.select(infinite, ls.y, to_light)
+        dist2 = dr.select(infinite, 1.0, dist2)
     dist = dr.sqrt(dist2)
     w = to_light / dist
     cos_x = dr.dot(ns, w)
     cos_y = -dr.dot(ls.n, w)
+    if geo.environment is not None:
+        cos_y = dr.select(infinite, 1.0, cos_y)
+        dist = dr.select(infinite, INF, dist)
     lit = active & (cos_x > 0) & (cos_y > 0) & (dist2 > 0)
     occluded = geo.occluded(surf.p, w, dist, surf.prim, ls.prim, lit)   # traced only where it counts
     geometry_term = cos_x * cos_y / dist2

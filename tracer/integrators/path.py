@@ -48,11 +48,13 @@ def _vertex(geo, rng, L, beta, eta, o, d, t_min, t_max, skip, prev_delta, prev_p
     rays += 1
     surf = geo.surface(hit)
     wi = -d
-    if geo.emitters:
+    if geo.has_lights:
         cos_l = dr.abs(dr.dot(surf.ns, d))
         le = geo.emitted(surf, wi)
         on_light = dr.max(le) > 0
         pdf_light = geo.light_pdf_area(surf) * dr.square(dr.select(on_light, hit.t, 0.0)) / dr.maximum(cos_l, 1e-30)
+        if geo.environment is not None:      # a ray that hits nothing sees the environment
+            pdf_light = dr.select(surf.valid, pdf_light, geo.environment_pdf)
         w = dr.select(prev_delta, 1.0, power_heuristic(prev_pdf, pdf_light))
         L += dr.select(on_light, beta * le * w, Array3f(0.0))
     active_next = surf.valid & (depth + 1 < max_depth)
@@ -65,7 +67,7 @@ def _vertex(geo, rng, L, beta, eta, o, d, t_min, t_max, skip, prev_delta, prev_p
         ns, lit = facing_normal(geo, surf, wi)
         albedo = geo.albedo(surf.material, is_diffuse)
         is_diffuse &= lit
-        if geo.emitters:
+        if geo.has_lights:
             ds = sample_direct(geo, surf, ns, albedo, rng.next_float32(), rng.next_float32(), rng.next_float32(),
                                is_diffuse)
             w_nee = power_heuristic(ds.pdf_light, dr.maximum(ds.cos_x, 0.0) / dr.pi)
