@@ -5,6 +5,7 @@ silently ignored: a parameter whose handling changes fails here."""
 import pickle
 
 import numpy as np
+import OpenEXR
 import pytest
 
 from tracer import SceneError, load_scene
@@ -55,6 +56,8 @@ VALUES = {
     "specular_transmittance": '<rgb name="specular_transmittance" value="0.5"/>',
     "int_ior": '<string name="int_ior" value="water"/>', "ext_ior": '<float name="ext_ior" value="1.1"/>',
     "radiance": '<rgb name="radiance" value="2, 3, 4"/>', "sampling_weight": '<float name="sampling_weight" value="2"/>',
+    "scale": '<float name="scale" value="2"/>', "mis_compensation": '<boolean name="mis_compensation" value="true"/>',
+    "bitmap": '<ref name="bitmap" id="nothing"/>',
 }
 HONOURED = "honoured"
 NO_EFFECT = "no effect on the image"
@@ -77,9 +80,10 @@ EXPECTED = {
     "bsdf": {"reflectance": HONOURED, "allow_transmission": REFUSED, "material": HONOURED, "eta": HONOURED,
              "k": HONOURED, "specular_reflectance": HONOURED, "specular_transmittance": REFUSED, "int_ior": HONOURED,
              "ext_ior": HONOURED},
-    "emitter": {"radiance": HONOURED, "sampling_weight": NO_EFFECT, "to_world": NO_EFFECT},   # constant: uniform
+    "emitter": {"radiance": HONOURED, "sampling_weight": NO_EFFECT, "to_world": NO_EFFECT,   # constant: uniform
+                "filename": HONOURED, "scale": HONOURED, "mis_compensation": NO_EFFECT, "bitmap": REFUSED},
 }
-SPECIAL = {("shape", "sphere", "flip_normals"): REFUSED, ("bsdf", "dielectric", "specular_reflectance"): REFUSED}
+SPECIAL = {("emitter", "envmap", "to_world"): HONOURED, ("shape", "sphere", "flip_normals"): REFUSED, ("bsdf", "dielectric", "specular_reflectance"): REFUSED}
 
 
 def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
@@ -110,6 +114,9 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
         body = f'<shape type="rectangle"><bsdf type="{kind}">{inner}{p}</bsdf></shape>'
     elif kind == "constant":
         body = f'<emitter type="{kind}">{p}</emitter>'
+    elif kind == "envmap":
+        file = "b.exr" if param == "filename" else "a.exr"
+        body = f'<emitter type="{kind}">{p}<string name="filename" value="{file}"/></emitter>'
     else:
         body = f'<shape type="rectangle"><emitter type="{kind}">{p}</emitter></shape>'
     return header, body
@@ -125,7 +132,8 @@ def _fingerprint(s) -> bytes:
                          [(r.to_world.tolist(), r.bsdf, r.radiance) for r in s.rectangles],
                          [(m.vertices.tolist(), m.faces.tolist(), None if m.normals is None else m.normals.tolist(),
                            m.bsdf, m.radiance) for m in s.meshes],
-                         [(x.center.tolist(), x.radius, x.bsdf) for x in s.spheres], s.environment))
+                         [(x.center.tolist(), x.radius, x.bsdf) for x in s.spheres], s.environment,
+                         None if s.envmap is None else (s.envmap.image.tolist(), s.envmap.to_world.tolist())))
 
 
 def _outcome(tmp_path, tag, kind, param) -> str:
@@ -136,6 +144,9 @@ def _outcome(tmp_path, tag, kind, param) -> str:
     parts = [serialized_mesh(VERTICES, FACES), serialized_mesh(VERTICES[::-1], FACES[:3])]
     write_serialized(tmp_path / "a.serialized", parts)
     write_serialized(tmp_path / "b.serialized", parts[::-1])
+    for name, value in (("a.exr", 1.0), ("b.exr", 2.0)):
+        OpenEXR.File({"type": OpenEXR.scanlineimage}, {"RGB": np.full((4, 8, 3), value, np.float32)}).write(
+            str(tmp_path / name))
     base = load_scene(write_scene(tmp_path, _scene_xml(tag, kind, None)[1], "base.xml", _scene_xml(tag, kind, None)[0]))
     header, body = _scene_xml(tag, kind, param)
     try:

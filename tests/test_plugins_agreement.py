@@ -36,7 +36,7 @@ def test_mesh_formats_agree_with_mitsuba(estimator, max_depth):
 
 
 def test_fails_when_radiance_is_weighted_by_d65_like_a_reflectance(monkeypatch):
-    def d65_everywhere(text, emitter):      # every spectrum in the scene is a wavelength:value list
+    def d65_everywhere(text, emitter, unbounded=False):      # every spectrum in the scene is a wavelength:value list
         return spectra.list_to_srgb(*spectra.parse_pairs(text), bounded=not emitter, illuminant=True)
 
     monkeypatch.setattr(spectra, "to_rgb", d65_everywhere)

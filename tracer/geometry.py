@@ -72,8 +72,10 @@ class SceneGeometry:
         self.fresnel_conductors = any(b.kind == "conductor" and not b.perfect_mirror for b in self.materials)
         self.emitters = scene.emitters
         self.environment = scene.environment
+        self.envmap = _EnvmapKernel(scene.envmap) if scene.envmap is not None else None
+        self.has_environment = self.environment is not None or self.envmap is not None
         # lights a shadow ray may be sent to, chosen uniformly: the area lights, then the environment
-        self.n_lights = len(self.emitters) + (self.environment is not None)
+        self.n_lights = len(self.emitters) + self.has_environment
         self.has_lights = self.n_lights > 0
         self.smooth = any(m.normals is not None for m in scene.meshes)
         self.bvh = BVHKernel(self.tri_vertices, self.n_rects) if self.n_tris > BVH_THRESHOLD else None
@@ -144,7 +146,7 @@ class SceneGeometry:
         primitive with the whole scene on one side of its plane (a wall of a convex room) never lies
         strictly between its ends: such primitives are left out of the shadow-ray kernel. Shadow rays to an
         environment leave the scene, so with one every primitive may block."""
-        if self.environment is not None:
+        if self.has_environment:
             return set(range(self.n_prims))
         points = [self.tri_vertices.reshape(-1, 3)]
         points += [r.center + a * e1 + b * e2 for r in self.rects for e1, e2 in [r.edges]
@@ -296,17 +298,24 @@ class SceneGeometry:
         if self.emitters:
             le = dr.gather(Array3f, self.prim_radiance, surf.prim, surf.valid)
             le = dr.select(surf.valid & (dr.dot(surf.ns, wo) > 0), le, Array3f(0.0))
-        if self.environment is not None:
-            le = dr.select(surf.valid, le, vec3(self.environment))
+        if self.has_environment:
+            le = dr.select(surf.valid, le, self.environment_radiance(-wo))
         return le
+
+    def environment_radiance(self, d: Array3f) -> Array3f:
+        """Radiance arriving from the environment along -d (d: the direction leaving the scene)."""
+        if self.envmap is not None:
+            return self.envmap.radiance(d)
+        return vec3(self.environment)
 
     def light_pdf_area(self, surf: Surface) -> Float:
         """Area density with which sample_light picks this point (0 off the lights)."""
         return dr.gather(Float, self.prim_light_pdf, surf.prim, surf.valid)
 
-    @property
-    def environment_pdf(self) -> float:
-        """Solid-angle density with which sample_light picks a direction to the environment."""
+    def environment_pdf(self, d: Array3f):
+        """Solid-angle density with which sample_light picks direction d to the environment."""
+        if self.envmap is not None:
+            return self.envmap.pdf(d) * (1.0 / self.n_lights)
         return 1.0 / (self.n_lights * 4.0 * np.pi)
 
     def sample_light(self, u_select: Float, u1: Float, u2: Float) -> LightSample:
@@ -319,9 +328,9 @@ class SceneGeometry:
         for k, e in enumerate(self.emitters):
             s = self._sample_rectangle(e, k, u1, u2) if isinstance(e, Rectangle) else self._sample_mesh(e, k, u1, u2)
             out = s if out is None else _select_sample(index == k, s, out)
-        if self.environment is not None:
-            d = square_to_uniform_sphere(u1, u2)
-            s = LightSample(d, -d, vec3(self.environment), Float(self.environment_pdf), UInt32(NO_PRIM))
+        if self.has_environment:
+            d = self.envmap.sample(u1, u2) if self.envmap is not None else square_to_uniform_sphere(u1, u2)
+            s = LightSample(d, -d, self.environment_radiance(d), Float(self.environment_pdf(d)), UInt32(NO_PRIM))
             out = s if out is None else _select_sample(index == len(self.emitters), s, out)
         return out
 
@@ -358,7 +367,8 @@ class SceneGeometry:
                  f"(Moeller-Trumbore, {tris}), {len(self.spheres)} spheres (quadratic)"]
         lines.append(f"shading normals: {'interpolated on smooth meshes' if self.smooth else 'geometric only'}")
         lines.append(f"materials: {', '.join(sorted({b.kind for b in self.materials}))}")
-        env = " and a constant environment" if self.environment is not None else ""
+        env = " and a constant environment" if self.environment is not None else (
+            " and an environment map" if self.envmap is not None else "")
         lines.append(f"light sampling: {len(self.emitters)} area light(s){env}")
         return lines
 
@@ -366,3 +376,76 @@ class SceneGeometry:
 def _select_sample(mask: Bool, a: LightSample, b: LightSample) -> LightSample:
     return LightSample(dr.select(mask, a.y, b.y), dr.select(mask, a.n, b.n), dr.select(mask, a.radiance, b.radiance),
                        dr.select(mask, a.pdf_area, b.pdf_area), dr.select(mask, a.prim, b.prim))
+
+
+class _EnvmapKernel:
+    """An `envmap` emitter in the kernel: radiance by direction, and the density and sampling of
+    tracer/envmap.py's distribution (the map's tables gathered from; its frame as literals)."""
+
+    def __init__(self, env):
+        from .envmap import distribution
+
+        self.h, self.w = env.image.shape[:2]
+        self.texels = Float(np.asarray(env.image, np.float32).ravel())
+        linear = env.to_world[:3, :3]
+        self.to_world, self.to_local = linear, np.linalg.inv(linear)
+        dist = distribution(env.image)
+        self.mix = dist.mix_uniform
+        self.row_cdf = Float(dist.row_cdf.astype(np.float32))
+        self.col_cdf = Float(dist.col_cdf.astype(np.float32).ravel())
+        self.cell_p = Float(dist.cell_p.astype(np.float32).ravel())
+
+    def _local(self, d: Array3f) -> Array3f:
+        m = self.to_local
+        return Array3f(*(d.x * float(m[r, 0]) + d.y * float(m[r, 1]) + d.z * float(m[r, 2]) for r in range(3)))
+
+    def _uv(self, v: Array3f) -> tuple[Float, Float]:
+        u = dr.atan2(v.x, -v.z) * (0.5 / dr.pi)
+        return u - dr.floor(u), dr.clip(dr.safe_acos(v.y) / dr.pi, 0.0, 1.0)
+
+    def _texel(self, i: UInt32, j: UInt32) -> Array3f:
+        return dr.gather(Array3f, self.texels, j * self.w + i)
+
+    def radiance(self, d: Array3f) -> Array3f:
+        u, t = self._uv(self._local(d))
+        x = u * self.w - 0.5                              # texel-centred, periodic in u
+        x0 = dr.floor(x)
+        wx = x - x0
+        i0 = UInt32(dr.select(x0 < 0, x0 + self.w, x0))
+        i1 = dr.select(i0 + 1 >= self.w, i0 + 1 - self.w, i0 + 1)
+        y = t * (self.h - 1)                              # rows at t = j / (H - 1)
+        j0 = dr.minimum(UInt32(dr.floor(y)), self.h - 1)
+        j1 = dr.minimum(j0 + 1, self.h - 1)
+        wy = y - Float(j0)
+        top = self._texel(i0, j0) * (1.0 - wx) + self._texel(i1, j0) * wx
+        bottom = self._texel(i0, j1) * (1.0 - wx) + self._texel(i1, j1) * wx
+        return top * (1.0 - wy) + bottom * wy
+
+    def pdf(self, d: Array3f) -> Float:
+        v = self._local(d)
+        u, t = self._uv(v)
+        i = dr.minimum(UInt32(u * self.w), self.w - 1)
+        j = dr.minimum(UInt32(t * self.h), self.h - 1)
+        sin_theta = dr.maximum(dr.safe_sqrt(1.0 - dr.square(v.y / dr.norm(v))), 1e-7)
+        p_cells = dr.gather(Float, self.cell_p, j * self.w + i) * (self.w * self.h / (2.0 * dr.pi * dr.pi))
+        return self.mix / (4.0 * dr.pi) + (1.0 - self.mix) * p_cells / sin_theta
+
+    def sample(self, u1: Float, u2: Float) -> Array3f:
+        uniform = u1 < self.mix
+        s = dr.select(uniform, u1 / self.mix, (u1 - self.mix) / (1.0 - self.mix)) if self.mix < 1 else u1
+        j = dr.binary_search(0, self.h - 1, lambda k: dr.gather(Float, self.row_cdf, k) <= s)
+        lo = dr.select(j > 0, dr.gather(Float, self.row_cdf, j - 1, j > 0), 0.0)
+        t = (Float(j) + dr.clip((s - lo) / (dr.gather(Float, self.row_cdf, j) - lo), 0.0, 1.0 - 2.0 ** -24)) / self.h
+        base = j * self.w
+        i = dr.binary_search(0, self.w - 1, lambda k: dr.gather(Float, self.col_cdf, base + k) <= u2)
+        lo = dr.select(i > 0, dr.gather(Float, self.col_cdf, base + i - 1, i > 0), 0.0)
+        u = (Float(i) + dr.clip((u2 - lo) / (dr.gather(Float, self.col_cdf, base + i) - lo), 0.0,
+                                1.0 - 2.0 ** -24)) / self.w
+        theta, phi = t * dr.pi, u * dr.two_pi
+        sin_t, cos_t = dr.sincos(theta)
+        sin_p, cos_p = dr.sincos(phi)
+        m = self.to_world
+        local = Array3f(sin_p * sin_t, cos_t, -cos_p * sin_t)
+        d = dr.normalize(Array3f(*(local.x * float(m[r, 0]) + local.y * float(m[r, 1]) + local.z * float(m[r, 2])
+                                   for r in range(3))))
+        return dr.select(uniform, square_to_uniform_sphere(s, u2), d)

@@ -22,7 +22,8 @@ from . import spectra, transform
 from .film import ReconstructionFilter
 from .ior import named_conductor, named_ior
 from .meshes import MeshError, read_obj, read_ply, vertex_normals
-from .scene import BSDF, Camera, Mesh, Rectangle, Scene, SceneError, Sphere
+from .envmap import EnvmapError, read_exr_rgb
+from .scene import BSDF, Camera, EnvironmentMap, Mesh, Rectangle, Scene, SceneError, Sphere
 from .serialized import read_serialized
 
 SUPPORTED = {
@@ -33,7 +34,7 @@ SUPPORTED = {
     "sampler": ("independent",),
     "shape": ("rectangle", "sphere", "obj", "ply", "serialized"),
     "bsdf": ("diffuse", "twosided", "conductor", "dielectric"),
-    "emitter": ("area", "constant"),
+    "emitter": ("area", "constant", "envmap"),
 }
 PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf", "emitter", "texture",
                "medium", "phase", "volume", "spectrum")
@@ -71,6 +72,7 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("bsdf", "dielectric"): ("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"),
     ("emitter", "area"): ("radiance", "sampling_weight"),
     ("emitter", "constant"): ("radiance", "sampling_weight", "to_world"),
+    ("emitter", "envmap"): ("filename", "bitmap", "scale", "to_world", "mis_compensation", "sampling_weight"),
 }
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 
@@ -496,7 +498,7 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
             ctx.attempt(_declared, ctx, node)        # used through <ref>; built (and checked) on their own
         elif node.tag == "emitter" and "id" in node.attrib and _emitter_type(node) == "area":
             ctx.attempt(_declared, ctx, node)        # an area light declared for a shape's <ref>
-        elif node.tag == "emitter" and _emitter_type(node) == "constant":
+        elif node.tag == "emitter" and _emitter_type(node) in ("constant", "envmap"):
             environments.append(node)
         elif node.tag in PLUGIN_TAGS:
             if ctx.attempt(_check_type, ctx, node) is not None:
@@ -523,9 +525,12 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
         seed=int(sampler.get("seed", 0)),
         max_depth=int(integrator.get("max_depth", -1)),
         rr_depth=int(integrator.get("rr_depth", 5)),
-        environment=ctx.attempt(_constant_light, ctx, environments[0]) if environments else None,
         path=ctx.path,
     )
+    if environments and _emitter_type(environments[0]) == "envmap":
+        scene.envmap = ctx.attempt(_envmap, ctx, environments[0])
+    elif environments:
+        scene.environment = ctx.attempt(_constant_light, ctx, environments[0])
     for node in shapes:
         ctx.attempt(_add_shape, ctx, scene, node)
     return scene
@@ -742,6 +747,33 @@ def _constant_light(ctx: _Context, node: Node) -> tuple[float, float, float]:
     if np.any(value < 0):
         raise ctx.error(node, f"radiance must be non-negative, got {tuple(float(x) for x in value)}")
     return _rgb(value)
+
+
+def _envmap(ctx: _Context, node: Node) -> EnvironmentMap:
+    """Mitsuba's `envmap` from an OpenEXR file (tracer/envmap.py)."""
+    props = _Props(ctx, node, _check_type(ctx, node), emitter=True)
+    filename = props.get("filename", None, ("string",))
+    scale = props.get("scale", 1.0, ("float", "integer"))
+    to_world = props.get("to_world", np.eye(4), ("transform",))
+    props.ignore("sampling_weight", "mis_compensation")    # how often and where it is sampled, not the estimate
+    props.finish()
+    if filename is None:
+        raise ctx.error(node, "envmap needs a <string name=\"filename\"> (an OpenEXR image)")
+    if not filename.lower().endswith(".exr"):
+        raise ctx.error(props.values["filename"], f"envmap '{filename}': only OpenEXR images are supported")
+    linear = to_world[:3, :3]
+    if not np.allclose(linear.T @ linear, np.eye(3), atol=1e-5):
+        raise ctx.error(node, "an envmap's to_world must be a rotation (no scale or shear)")
+    if scale < 0:
+        raise ctx.error(node, f"scale must be non-negative, got {scale}")
+    file = ctx.resolve(filename)
+    if not file.is_file():
+        raise ctx.error(node, f"image '{filename}' not found (looked in {', '.join(map(str, ctx.resolver))})")
+    try:
+        image = read_exr_rgb(file)
+    except EnvmapError as e:
+        raise ctx.error(node, str(e)) from None
+    return EnvironmentMap(image * np.float32(scale), to_world, node.attrib.get("id", f"envmap@{node.line}"))
 
 
 def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:

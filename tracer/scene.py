@@ -98,6 +98,16 @@ class Mesh:
         return 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
 
 
+@dataclass(eq=False)
+class EnvironmentMap:
+    """Mitsuba's `envmap`: a latitude-longitude image of radiance (already times `scale`) around the scene,
+    turned by `to_world` (tracer/envmap.py states the mapping)."""
+
+    image: np.ndarray          # (H, W, 3) float32 linear RGB
+    to_world: np.ndarray
+    name: str = ""
+
+
 @dataclass
 class Camera:
     """Mitsuba's `perspective` sensor with an `hdrfilm` and its reconstruction filter."""
@@ -139,6 +149,7 @@ class Scene:
     max_depth: int = -1
     rr_depth: int = 5
     environment: tuple[float, float, float] | None = None   # a `constant` emitter's radiance, from all directions
+    envmap: EnvironmentMap | None = None                     # or an `envmap` emitter
     path: Path | None = None
 
     @property
@@ -147,8 +158,9 @@ class Scene:
 
     def estimator_refusals(self, estimator: str) -> list[str]:
         """What the named estimator cannot render correctly in this scene, one line each (empty: nothing)."""
-        if estimator == "report" and self.environment is not None:
-            return [f"{self.path}: the report estimator does not render the 'constant' emitter (an environment); "
+        if estimator == "report" and (self.environment is not None or self.envmap is not None):
+            plugin = "constant" if self.environment is not None else "envmap"
+            return [f"{self.path}: the report estimator does not render the '{plugin}' emitter (an environment); "
                     "use --estimator path"]
         return []
 

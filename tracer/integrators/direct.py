@@ -37,7 +37,7 @@ def sample_direct(geo: SceneGeometry, surf: Surface, ns: Array3f, albedo: Array3
     ls = geo.sample_light(u_select, u1, u2)
     to_light = ls.y - surf.p
     dist2 = dr.squared_norm(to_light)
-    if geo.environment is not None:
+    if geo.has_environment:
         infinite = ls.prim == NO_PRIM
         to_light = dr.select(infinite, ls.y, to_light)
         dist2 = dr.select(infinite, 1.0, dist2)
@@ -45,7 +45,7 @@ def sample_direct(geo: SceneGeometry, surf: Surface, ns: Array3f, albedo: Array3
     w = to_light / dist
     cos_x = dr.dot(ns, w)
     cos_y = -dr.dot(ls.n, w)
-    if geo.environment is not None:
+    if geo.has_environment:
         cos_y = dr.select(infinite, 1.0, cos_y)
         dist = dr.select(infinite, INF, dist)
     lit = active & (cos_x > 0) & (cos_y > 0) & (dist2 > 0)

@@ -53,8 +53,8 @@ def _vertex(geo, rng, L, beta, eta, o, d, t_min, t_max, skip, prev_delta, prev_p
         le = geo.emitted(surf, wi)
         on_light = dr.max(le) > 0
         pdf_light = geo.light_pdf_area(surf) * dr.square(dr.select(on_light, hit.t, 0.0)) / dr.maximum(cos_l, 1e-30)
-        if geo.environment is not None:      # a ray that hits nothing sees the environment
-            pdf_light = dr.select(surf.valid, pdf_light, geo.environment_pdf)
+        if geo.has_environment:              # a ray that hits nothing sees the environment
+            pdf_light = dr.select(surf.valid, pdf_light, geo.environment_pdf(d))
         w = dr.select(prev_delta, 1.0, power_heuristic(prev_pdf, pdf_light))
         L += dr.select(on_light, beta * le * w, Array3f(0.0))
     active_next = surf.valid & (depth + 1 < max_depth)
