@@ -58,6 +58,8 @@ VALUES = {
     "radiance": '<rgb name="radiance" value="2, 3, 4"/>', "sampling_weight": '<float name="sampling_weight" value="2"/>',
     "scale": '<float name="scale" value="2"/>', "mis_compensation": '<boolean name="mis_compensation" value="true"/>',
     "bitmap": '<ref name="bitmap" id="nothing"/>',
+    "color0": '<rgb name="color0" value="0.1"/>', "color1": '<rgb name="color1" value="0.9"/>',
+    "to_uv": '<transform name="to_uv"><scale value="2"/></transform>',
 }
 HONOURED = "honoured"
 NO_EFFECT = "no effect on the image"
@@ -80,6 +82,7 @@ EXPECTED = {
     "bsdf": {"reflectance": HONOURED, "allow_transmission": REFUSED, "material": HONOURED, "eta": HONOURED,
              "k": HONOURED, "specular_reflectance": HONOURED, "specular_transmittance": REFUSED, "int_ior": HONOURED,
              "ext_ior": HONOURED},
+    "texture": {"color0": HONOURED, "color1": HONOURED, "to_uv": HONOURED},
     "emitter": {"radiance": HONOURED, "sampling_weight": NO_EFFECT, "to_world": NO_EFFECT,   # constant: uniform
                 "filename": HONOURED, "scale": HONOURED, "mis_compensation": NO_EFFECT, "bitmap": REFUSED},
 }
@@ -112,6 +115,9 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
     elif tag == "bsdf":
         inner = '<bsdf type="diffuse"/>' if kind == "twosided" else ""
         body = f'<shape type="rectangle"><bsdf type="{kind}">{inner}{p}</bsdf></shape>'
+    elif tag == "texture":
+        body = (f'<shape type="rectangle"><bsdf type="diffuse"><texture type="{kind}" name="reflectance">{p}'
+                '</texture></bsdf></shape>')
     elif kind == "constant":
         body = f'<emitter type="{kind}">{p}</emitter>'
     elif kind == "envmap":

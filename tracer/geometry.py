@@ -45,6 +45,7 @@ class Surface:
     material: UInt32
     prim: UInt32
     valid: Bool
+    uv: tuple[Float, Float] | None = None   # texture coordinates, in scenes with textures only
 
 
 @dataclass
@@ -68,6 +69,7 @@ class SceneGeometry:
         self.n_prims = self.sphere_base + len(self.spheres)
         self.materials: list[BSDF] = scene.bsdfs
         self.kinds = {_KIND_CODE[b.kind] for b in self.materials}
+        self.textured = any(b.texture is not None for b in self.materials)
         # conductors other than perfect mirrors need their Fresnel term; without them the kernel has none
         self.fresnel_conductors = any(b.kind == "conductor" and not b.perfect_mirror for b in self.materials)
         self.emitters = scene.emitters
@@ -123,8 +125,27 @@ class SceneGeometry:
         self.mat_twosided = UInt32([int(b.twosided) for b in materials])
         self.mat_int_ior = Float([b.int_ior for b in materials])
         self.mat_ext_ior = Float([b.ext_ior for b in materials])
+        if self.textured:
+            self._build_texture_tables(materials)
         self.mat_eta = Float(np.array([b.eta for b in materials]).ravel())
         self.mat_k = Float(np.array([b.k for b in materials]).ravel())
+
+    def _build_texture_tables(self, materials: list[BSDF]) -> None:
+        """Per triangle corner texture coordinates (a triangle's own (0,0), (1,0), (0,1) where its mesh has
+        none, so that interpolation gives (b1, b2) as Mitsuba), and per material its checkerboard."""
+        uvs = np.zeros((max(self.n_tris, 1), 3, 2))
+        base = 0
+        for m in self.scene.meshes:
+            n = len(m.faces)
+            uvs[base:base + n] = m.uvs[m.faces] if m.uvs is not None else [[0, 0], [1, 0], [0, 1]]
+            base += n
+        self.corner_uvs = Float(uvs.ravel())
+        tex = np.zeros((len(materials), 1 + 3 + 3 + 6))
+        for i, b in enumerate(materials):
+            if b.texture is not None:
+                t = b.texture
+                tex[i] = [1.0, *t.color0, *t.color1, *np.asarray(t.to_uv)[:2].ravel()]
+        self.mat_texture = Float(tex.ravel())
 
     def _emitter_prim_ranges(self) -> list[tuple[int, int]]:
         return [self.prim_range(e) for e in self.emitters]
@@ -254,7 +275,21 @@ class SceneGeometry:
                       + dr.gather(Array3f, self.corner_normals, tri * 3 + 2, is_tri) * hit.b2)
             ns = dr.select(is_tri, dr.normalize(interp), n)
         material = dr.gather(UInt32, self.prim_material, prim, valid)
-        return Surface(p, n, ns, material, dr.select(valid, hit.prim, NO_PRIM), valid)
+        uv = self._uv(hit, prim, valid) if self.textured else None
+        return Surface(p, n, ns, material, dr.select(valid, hit.prim, NO_PRIM), valid, uv)
+
+    def _uv(self, hit: Hit, prim: UInt32, valid: Bool) -> tuple[Float, Float]:
+        """Texture coordinates: a rectangle's local coordinates mapped to [0, 1]^2, a triangle's interpolated
+        from its corners (spheres carry no textures)."""
+        u, v = dr.fma(hit.b1, 0.5, 0.5), dr.fma(hit.b2, 0.5, 0.5)
+        if self.n_tris:
+            tri = prim - self.n_rects
+            is_tri = valid & (prim >= self.n_rects) & (tri < self.n_tris)
+            b0 = 1.0 - hit.b1 - hit.b2
+            c = [dr.gather(Float, self.corner_uvs, tri * 6 + k, is_tri) for k in range(6)]
+            u = dr.select(is_tri, c[0] * b0 + c[2] * hit.b1 + c[4] * hit.b2, u)
+            v = dr.select(is_tri, c[1] * b0 + c[3] * hit.b1 + c[5] * hit.b2, v)
+        return u, v
 
     def _sphere_select(self, prim: UInt32) -> tuple[Array3f, Float]:
         center, radius = vec3(self.spheres[0].center), Float(self.spheres[0].radius)
@@ -266,6 +301,19 @@ class SceneGeometry:
 
     def albedo(self, material: UInt32, active: Bool) -> Array3f:
         return dr.gather(Array3f, self.mat_albedo, material, active)
+
+    def albedo_at(self, surf: Surface, active: Bool) -> Array3f:
+        """A diffuse surface's reflectance at its hit point: its texture's where it has one."""
+        rho = self.albedo(surf.material, active)
+        if not self.textured:
+            return rho
+        t = [dr.gather(Float, self.mat_texture, surf.material * 13 + k, active) for k in range(13)]
+        u, v = surf.uv
+        tu = dr.fma(t[7], u, dr.fma(t[8], v, t[9]))
+        tv = dr.fma(t[10], u, dr.fma(t[11], v, t[12]))
+        first = (tu - dr.floor(tu) > 0.5) == (tv - dr.floor(tv) > 0.5)
+        checker = dr.select(first, Array3f(t[1], t[2], t[3]), Array3f(t[4], t[5], t[6]))
+        return dr.select(t[0] > 0, checker, rho)
 
     def kind(self, material: UInt32, active: Bool) -> UInt32:
         return dr.gather(UInt32, self.mat_kind, material, active)

@@ -23,7 +23,7 @@ from .film import ReconstructionFilter
 from .ior import named_conductor, named_ior
 from .meshes import MeshError, read_obj, read_ply, vertex_normals
 from .envmap import EnvmapError, read_exr_rgb
-from .scene import BSDF, Camera, EnvironmentMap, Mesh, Rectangle, Scene, SceneError, Sphere
+from .scene import BSDF, Camera, Checkerboard, EnvironmentMap, Mesh, Rectangle, Scene, SceneError, Sphere
 from .serialized import read_serialized
 
 SUPPORTED = {
@@ -35,6 +35,7 @@ SUPPORTED = {
     "shape": ("rectangle", "sphere", "obj", "ply", "serialized"),
     "bsdf": ("diffuse", "twosided", "conductor", "dielectric"),
     "emitter": ("area", "constant", "envmap"),
+    "texture": ("checkerboard",),
 }
 PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf", "emitter", "texture",
                "medium", "phase", "volume", "spectrum")
@@ -71,6 +72,7 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("bsdf", "conductor"): ("material", "eta", "k", "specular_reflectance"),
     ("bsdf", "dielectric"): ("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"),
     ("emitter", "area"): ("radiance", "sampling_weight"),
+    ("texture", "checkerboard"): ("color0", "color1", "to_uv"),
     ("emitter", "constant"): ("radiance", "sampling_weight", "to_world"),
     ("emitter", "envmap"): ("filename", "bitmap", "scale", "to_world", "mis_compensation", "sampling_weight"),
 }
@@ -319,14 +321,17 @@ class _Props:
             raise self.ctx.error(child, f"property '{name}' must be given as <{'> or <'.join(tags)}>")
         return _property_value(self.ctx, child, self.emitter)
 
-    def colour(self, name: str, default: float, unbounded: bool = False) -> np.ndarray:
+    def colour(self, name: str, default: float, unbounded: bool = False, textured: bool = False):
         """A reflectance, a radiance (on an emitter) or an `unbounded` quantity such as a conductor's eta:
-        <rgb>, <spectrum>, <float>; a texture is refused."""
+        <rgb>, <spectrum>, <float>; where `textured`, also a `checkerboard` texture (inline or by <ref>)."""
         refs = [o for o in self.objects if o.attrib.get("name") == name]
         if refs:
             self.taken.add(id(refs[0]))
-            raise self.ctx.error(refs[0], f"'{name}' given by a texture or reference: unsupported; "
-                                          "supported: <rgb>, <spectrum>, <float>")
+            node = _resolve_ref(self.ctx, refs[0]) if refs[0].tag == "ref" else refs[0]
+            if textured and node.tag == "texture":
+                return self.ctx.built_once(node, lambda n: _texture(self.ctx, n))
+            where = "supported: <rgb>, <spectrum>, <float>" + (", a checkerboard <texture>" if textured else "")
+            raise self.ctx.error(refs[0], f"'{name}' given by a <{node.tag}>{_type_attr(node)}: unsupported; {where}")
         child = self.values.get(name)
         if child is not None and child.tag == "spectrum" and unbounded:
             self.read.add(name)
@@ -541,7 +546,8 @@ def _emitter_type(node: Node) -> str:
 
 
 def _declared(ctx: _Context, node: Node) -> None:
-    build = {"bsdf": _bsdf, "film": _film, "rfilter": _rfilter, "sampler": _sampler, "emitter": _area_light}
+    build = {"bsdf": _bsdf, "film": _film, "rfilter": _rfilter, "sampler": _sampler, "emitter": _area_light,
+             "texture": _texture}
     if node.tag not in build:
         _check_type(ctx, node)
         raise ctx.error(node, f"<{node.tag}> is unsupported")
@@ -677,8 +683,10 @@ def _bsdf(ctx: _Context, node: Node) -> BSDF:
             raise ctx.error(node, "twosided with different front and back bsdfs is unsupported")
         return BSDF("diffuse", bases[0].reflectance, twosided=True)
     if kind == "diffuse":
-        rho = props.colour("reflectance", 0.5)
+        rho = props.colour("reflectance", 0.5, textured=True)
         props.finish()
+        if isinstance(rho, Checkerboard):
+            return BSDF("diffuse", (0.0, 0.0, 0.0), texture=rho)
         if np.any(rho < 0) or np.any(rho > 1):
             raise ctx.error(node, f"diffuse reflectance must lie in [0, 1], got {tuple(float(x) for x in rho)}")
         return BSDF("diffuse", tuple(float(x) for x in rho))
@@ -706,6 +714,20 @@ def _bsdf(ctx: _Context, node: Node) -> BSDF:
     if min(ior.values()) <= 0:
         raise ctx.error(node, "indices of refraction must be positive")
     return BSDF("dielectric", (1.0, 1.0, 1.0), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"])
+
+
+def _texture(ctx: _Context, node: Node) -> Checkerboard:
+    kind = _check_type(ctx, node)
+    props = _Props(ctx, node, kind)
+    colours = [props.colour(name, d) for name, d in (("color0", 0.4), ("color1", 0.2))]
+    m = props.get("to_uv", np.eye(4), ("transform",))
+    props.finish()
+    for name, c in zip(("color0", "color1"), colours):
+        if np.any(c < 0) or np.any(c > 1):
+            raise ctx.error(node, f"{name} must lie in [0, 1], got {_rgb(c)}")
+    # a 4x4 transform acts on (u, v) through its x, y rows and columns and its translation (Mitsuba's extract)
+    to_uv = m[np.ix_([0, 1, 3], [0, 1, 3])]
+    return Checkerboard(_rgb(colours[0]), _rgb(colours[1]), tuple(tuple(float(x) for x in row) for row in to_uv))
 
 
 def _rgb(value: np.ndarray) -> tuple[float, float, float]:
@@ -802,6 +824,8 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
         props.finish()
         if flip:
             raise ctx.error(props.values["flip_normals"], "flip_normals on a sphere is unsupported")
+        if bsdf.texture is not None:
+            raise ctx.error(node, "a texture on a sphere is unsupported; supported on rectangle and serialized shapes")
         if emitters:
             raise ctx.error(node, "area emitters are supported on rectangle and mesh shapes only")
         linear = to_world[:3, :3]
@@ -827,6 +851,9 @@ def _mesh(ctx, node, kind, props, to_world, flip, bsdf, radiance, name) -> Mesh:
     file = ctx.resolve(filename)
     if not file.is_file():
         raise ctx.error(node, f"mesh file '{filename}' not found (looked in {', '.join(map(str, ctx.resolver))})")
+    if bsdf.texture is not None and kind != "serialized":
+        raise ctx.error(node, f"a texture on a {kind} shape is unsupported; supported on rectangle and serialized shapes")
+    uvs = None
     try:
         if kind == "obj":
             vertices, faces, normals = read_obj(file)
@@ -835,9 +862,11 @@ def _mesh(ctx, node, kind, props, to_world, flip, bsdf, radiance, name) -> Mesh:
         else:
             if shape_index < 0:
                 raise ctx.error(node, f"shape_index must be non-negative, got {shape_index}")
-            vertices, faces, normals = read_serialized(file, shape_index)
+            vertices, faces, normals, uvs = read_serialized(file, shape_index)
     except MeshError as e:
         raise ctx.error(node, str(e)) from None
+    if flip and bsdf.texture is not None and uvs is None:
+        raise ctx.error(node, "flip_normals with a texture on a mesh without texture coordinates is unsupported")
     vertices = transform.apply_point(to_world, vertices)
     if flip:     # reversed winding flips the face normals
         faces = faces[:, ::-1]
@@ -847,4 +876,4 @@ def _mesh(ctx, node, kind, props, to_world, flip, bsdf, radiance, name) -> Mesh:
         normals = vertex_normals(vertices, faces)
     else:
         normals = transform.apply_normal(to_world, normals) * (-1.0 if flip else 1.0)
-    return Mesh(vertices, faces, bsdf, normals, radiance, name)
+    return Mesh(vertices, faces, bsdf, normals, radiance, name, uvs)

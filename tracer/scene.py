@@ -19,6 +19,16 @@ class SceneError(ValueError):
 
 
 @dataclass(frozen=True)
+class Checkerboard:
+    """Mitsuba's `checkerboard` texture: with (u', v') = to_uv (u, v), color0 where the fractional parts of u'
+    and v' are both above 1/2 or both not, color1 elsewhere."""
+
+    color0: tuple[float, float, float] = (0.4, 0.4, 0.4)
+    color1: tuple[float, float, float] = (0.2, 0.2, 0.2)
+    to_uv: tuple[tuple[float, float, float], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+
+@dataclass(frozen=True)
 class BSDF:
     """`diffuse` (Lambertian, one-sided unless `twosided`), `conductor` (smooth: `reflectance` times the exact
     Fresnel reflectance of the complex index eta + i k; eta 0, k 1 is a perfect mirror) or `dielectric`."""
@@ -30,6 +40,7 @@ class BSDF:
     ext_ior: float = 1.000277
     eta: tuple[float, float, float] = (0.0, 0.0, 0.0)
     k: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    texture: Checkerboard | None = None     # a diffuse reflectance given by a texture (then not `reflectance`)
 
     @property
     def perfect_mirror(self) -> bool:
@@ -91,6 +102,7 @@ class Mesh:
     normals: np.ndarray | None = None
     radiance: tuple[float, float, float] | None = None
     name: str = ""
+    uvs: np.ndarray | None = None        # per-vertex texture coordinates; None: a triangle's (b1, b2)
 
     @property
     def triangle_areas(self) -> np.ndarray:
@@ -158,11 +170,15 @@ class Scene:
 
     def estimator_refusals(self, estimator: str) -> list[str]:
         """What the named estimator cannot render correctly in this scene, one line each (empty: nothing)."""
+        out = []
         if estimator == "report" and (self.environment is not None or self.envmap is not None):
             plugin = "constant" if self.environment is not None else "envmap"
-            return [f"{self.path}: the report estimator does not render the '{plugin}' emitter (an environment); "
-                    "use --estimator path"]
-        return []
+            out.append(f"{self.path}: the report estimator does not render the '{plugin}' emitter (an environment); "
+                       "use --estimator path")
+        if estimator == "report" and any(b.texture is not None for b in self.bsdfs):
+            out.append(f"{self.path}: the report estimator does not render the 'checkerboard' texture; "
+                       "use --estimator path")
+        return out
 
     @property
     def bsdfs(self) -> list[BSDF]:

@@ -22,8 +22,9 @@ MAGIC = 0x041C
 HAS_NORMALS, HAS_TEXCOORDS, HAS_COLORS, DOUBLE_PRECISION = 0x1, 0x2, 0x8, 0x2000
 
 
-def read_serialized(path: Path, shape_index: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Vertices, triangles and per-vertex normals (None when not stored) of mesh `shape_index`."""
+def read_serialized(path: Path, shape_index: int = 0):
+    """Vertices, triangles, per-vertex normals and texture coordinates (None when not stored) of mesh
+    `shape_index`."""
     try:
         stat = path.stat()
         return _read(path.resolve(), shape_index, stat.st_size, stat.st_mtime_ns)
@@ -72,8 +73,7 @@ def _mesh(body: bytes, version: int, path: Path):
 
     vertices = take(real, 3 * n_vertices).reshape(-1, 3).astype(float)
     normals = take(real, 3 * n_vertices).reshape(-1, 3).astype(float) if flags & HAS_NORMALS else None
-    if flags & HAS_TEXCOORDS:
-        take(real, 2 * n_vertices)
+    uvs = take(real, 2 * n_vertices).reshape(-1, 2).astype(float) if flags & HAS_TEXCOORDS else None
     if flags & HAS_COLORS:
         take(real, 3 * n_vertices)
     faces = take(np.dtype("<u4"), 3 * n_faces).reshape(-1, 3).astype(np.int64)
@@ -83,7 +83,7 @@ def _mesh(body: bytes, version: int, path: Path):
         raise MeshError(f"{path}: a triangle names vertex {faces.max()} of {n_vertices}")
     if not np.all(np.isfinite(vertices)):
         raise MeshError(f"{path}: a vertex position is NaN or infinite")
-    for a in (vertices, faces, normals):
+    for a in (vertices, faces, normals, uvs):
         if a is not None:
             a.flags.writeable = False
-    return vertices, faces, normals
+    return vertices, faces, normals, uvs

@@ -65,7 +65,7 @@ def _vertex(geo, rng, L, beta, eta, o, d, t_min, t_max, skip, prev_delta, prev_p
     if DIFFUSE in geo.kinds:
         is_diffuse = active_next & (kind == DIFFUSE)
         ns, lit = facing_normal(geo, surf, wi)
-        albedo = geo.albedo(surf.material, is_diffuse)
+        albedo = geo.albedo_at(surf, is_diffuse)
         is_diffuse &= lit
         if geo.has_lights:
             ds = sample_direct(geo, surf, ns, albedo, rng.next_float32(), rng.next_float32(), rng.next_float32(),
