@@ -60,6 +60,7 @@ VALUES = {
     "bitmap": '<ref name="bitmap" id="nothing"/>',
     "color0": '<rgb name="color0" value="0.1"/>', "color1": '<rgb name="color1" value="0.9"/>',
     "to_uv": '<transform name="to_uv"><scale value="2"/></transform>',
+    "position": '<point name="position" x="1" y="2" z="3"/>', "intensity": '<rgb name="intensity" value="2, 3, 4"/>',
 }
 HONOURED = "honoured"
 NO_EFFECT = "no effect on the image"
@@ -84,9 +85,11 @@ EXPECTED = {
              "ext_ior": HONOURED},
     "texture": {"color0": HONOURED, "color1": HONOURED, "to_uv": HONOURED},
     "emitter": {"radiance": HONOURED, "sampling_weight": NO_EFFECT, "to_world": NO_EFFECT,   # constant: uniform
-                "filename": HONOURED, "scale": HONOURED, "mis_compensation": NO_EFFECT, "bitmap": REFUSED},
+                "filename": HONOURED, "scale": HONOURED, "mis_compensation": NO_EFFECT, "bitmap": REFUSED,
+                "position": HONOURED, "intensity": HONOURED},
 }
-SPECIAL = {("emitter", "envmap", "to_world"): HONOURED, ("shape", "sphere", "flip_normals"): REFUSED, ("bsdf", "dielectric", "specular_reflectance"): REFUSED}
+SPECIAL = {("emitter", "envmap", "to_world"): HONOURED, ("emitter", "point", "to_world"): HONOURED,
+           ("shape", "sphere", "flip_normals"): REFUSED, ("bsdf", "dielectric", "specular_reflectance"): REFUSED}
 
 
 def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
@@ -118,7 +121,7 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
     elif tag == "texture":
         body = (f'<shape type="rectangle"><bsdf type="diffuse"><texture type="{kind}" name="reflectance">{p}'
                 '</texture></bsdf></shape>')
-    elif kind == "constant":
+    elif kind in ("constant", "point"):
         body = f'<emitter type="{kind}">{p}</emitter>'
     elif kind == "envmap":
         file = "b.exr" if param == "filename" else "a.exr"
@@ -139,7 +142,8 @@ def _fingerprint(s) -> bytes:
                          [(m.vertices.tolist(), m.faces.tolist(), None if m.normals is None else m.normals.tolist(),
                            m.bsdf, m.radiance) for m in s.meshes],
                          [(x.center.tolist(), x.radius, x.bsdf) for x in s.spheres], s.environment,
-                         None if s.envmap is None else (s.envmap.image.tolist(), s.envmap.to_world.tolist())))
+                         None if s.envmap is None else (s.envmap.image.tolist(), s.envmap.to_world.tolist()),
+                         [(light.position.tolist(), light.intensity) for light in s.point_lights]))
 
 
 def _outcome(tmp_path, tag, kind, param) -> str:

@@ -18,6 +18,7 @@ from .sampling import square_to_uniform_sphere, square_to_uniform_triangle
 from .scene import BSDF, Mesh, Rectangle, Scene
 
 DIFFUSE, CONDUCTOR, DIELECTRIC = 0, 1, 2
+POINT_LIGHT = NO_PRIM - 1   # the `prim` of a light sample on a point light (NO_PRIM: on the environment)
 BVH_THRESHOLD = 56  # triangles above which a BVH beats the unrolled brute-force tests (measured: brute force wins at 48, the BVH at 64)
 _KIND_CODE = {"diffuse": DIFFUSE, "conductor": CONDUCTOR, "dielectric": DIELECTRIC}
 
@@ -76,8 +77,9 @@ class SceneGeometry:
         self.environment = scene.environment
         self.envmap = _EnvmapKernel(scene.envmap) if scene.envmap is not None else None
         self.has_environment = self.environment is not None or self.envmap is not None
-        # lights a shadow ray may be sent to, chosen uniformly: the area lights, then the environment
-        self.n_lights = len(self.emitters) + self.has_environment
+        self.points = scene.point_lights
+        # lights a shadow ray may be sent to, chosen uniformly: the area lights, point lights, the environment
+        self.n_lights = len(self.emitters) + len(self.points) + self.has_environment
         self.has_lights = self.n_lights > 0
         self.smooth = any(m.normals is not None for m in scene.meshes)
         self.bvh = BVHKernel(self.tri_vertices, self.n_rects) if self.n_tris > BVH_THRESHOLD else None
@@ -172,6 +174,7 @@ class SceneGeometry:
         points = [self.tri_vertices.reshape(-1, 3)]
         points += [r.center + a * e1 + b * e2 for r in self.rects for e1, e2 in [r.edges]
                    for a in (-1, 1) for b in (-1, 1)]
+        points += [light.position for light in self.points]     # shadow rays end there too
         points = np.vstack([np.atleast_2d(p) for p in points if np.size(p)]) if any(np.size(p) for p in points) \
             else np.zeros((0, 3))
         eps = 1e-6 * self.scene.extent()
@@ -369,17 +372,21 @@ class SceneGeometry:
     def sample_light(self, u_select: Float, u1: Float, u2: Float) -> LightSample:
         """A light chosen uniformly, then a point uniform in area on it; for the environment, a direction
         uniform on the sphere, returned as y (with n = -y, prim = NO_PRIM and pdf_area its solid-angle
-        density)."""
+        density); for a point light its position (prim = POINT_LIGHT, pdf_area the choice's probability)."""
         n_lights = self.n_lights
         index = dr.minimum(UInt32(u_select * n_lights), n_lights - 1)
         out = None
         for k, e in enumerate(self.emitters):
             s = self._sample_rectangle(e, k, u1, u2) if isinstance(e, Rectangle) else self._sample_mesh(e, k, u1, u2)
             out = s if out is None else _select_sample(index == k, s, out)
+        for k, light in enumerate(self.points):
+            s = LightSample(vec3(light.position), Array3f(0.0), vec3(light.intensity), Float(1.0 / n_lights),
+                            UInt32(POINT_LIGHT))
+            out = s if out is None else _select_sample(index == len(self.emitters) + k, s, out)
         if self.has_environment:
             d = self.envmap.sample(u1, u2) if self.envmap is not None else square_to_uniform_sphere(u1, u2)
             s = LightSample(d, -d, self.environment_radiance(d), Float(self.environment_pdf(d)), UInt32(NO_PRIM))
-            out = s if out is None else _select_sample(index == len(self.emitters), s, out)
+            out = s if out is None else _select_sample(index == n_lights - 1, s, out)
         return out
 
     def _sample_rectangle(self, r: Rectangle, k: int, u1: Float, u2: Float) -> LightSample:
@@ -417,7 +424,8 @@ class SceneGeometry:
         lines.append(f"materials: {', '.join(sorted({b.kind for b in self.materials}))}")
         env = " and a constant environment" if self.environment is not None else (
             " and an environment map" if self.envmap is not None else "")
-        lines.append(f"light sampling: {len(self.emitters)} area light(s){env}")
+        points = f", {len(self.points)} point light(s)" if self.points else ""
+        lines.append(f"light sampling: {len(self.emitters)} area light(s){points}{env}")
         return lines
 
 

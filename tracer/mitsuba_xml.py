@@ -23,7 +23,8 @@ from .film import ReconstructionFilter
 from .ior import named_conductor, named_ior
 from .meshes import MeshError, read_obj, read_ply, vertex_normals
 from .envmap import EnvmapError, read_exr_rgb
-from .scene import BSDF, Camera, Checkerboard, EnvironmentMap, Mesh, Rectangle, Scene, SceneError, Sphere
+from .scene import (BSDF, Camera, Checkerboard, EnvironmentMap, Mesh, PointLight, Rectangle, Scene, SceneError,
+                    Sphere)
 from .serialized import read_serialized
 
 SUPPORTED = {
@@ -34,7 +35,7 @@ SUPPORTED = {
     "sampler": ("independent",),
     "shape": ("rectangle", "sphere", "obj", "ply", "serialized"),
     "bsdf": ("diffuse", "twosided", "conductor", "dielectric"),
-    "emitter": ("area", "constant", "envmap"),
+    "emitter": ("area", "constant", "envmap", "point"),
     "texture": ("checkerboard",),
 }
 PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf", "emitter", "texture",
@@ -73,6 +74,7 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("bsdf", "dielectric"): ("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"),
     ("emitter", "area"): ("radiance", "sampling_weight"),
     ("texture", "checkerboard"): ("color0", "color1", "to_uv"),
+    ("emitter", "point"): ("position", "to_world", "intensity", "sampling_weight"),
     ("emitter", "constant"): ("radiance", "sampling_weight", "to_world"),
     ("emitter", "envmap"): ("filename", "bitmap", "scale", "to_world", "mis_compensation", "sampling_weight"),
 }
@@ -491,7 +493,7 @@ def _check_type(ctx: _Context, node: Node) -> str:
 
 
 def _build_scene(ctx: _Context, root: Node) -> Scene | None:
-    integrators, sensors, shapes, environments = [], [], [], []
+    integrators, sensors, shapes, environments, points = [], [], [], [], []
     for node in root.children:
         if node.tag == "integrator":
             integrators.append(node)
@@ -505,6 +507,8 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
             ctx.attempt(_declared, ctx, node)        # an area light declared for a shape's <ref>
         elif node.tag == "emitter" and _emitter_type(node) in ("constant", "envmap"):
             environments.append(node)
+        elif node.tag == "emitter" and _emitter_type(node) == "point":
+            points.append(node)
         elif node.tag in PLUGIN_TAGS:
             if ctx.attempt(_check_type, ctx, node) is not None:
                 ctx.errors.append(str(ctx.error(node, f"a top-level <{node.tag}> is unsupported; supported at the "
@@ -532,6 +536,10 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
         rr_depth=int(integrator.get("rr_depth", 5)),
         path=ctx.path,
     )
+    for node in points:
+        light = ctx.attempt(_point_light, ctx, node)
+        if light is not None:
+            scene.point_lights.append(light)
     if environments and _emitter_type(environments[0]) == "envmap":
         scene.envmap = ctx.attempt(_envmap, ctx, environments[0])
     elif environments:
@@ -769,6 +777,22 @@ def _constant_light(ctx: _Context, node: Node) -> tuple[float, float, float]:
     if np.any(value < 0):
         raise ctx.error(node, f"radiance must be non-negative, got {tuple(float(x) for x in value)}")
     return _rgb(value)
+
+
+def _point_light(ctx: _Context, node: Node) -> PointLight:
+    """Mitsuba's `point` emitter: at `position`, or at the translation of `to_world`."""
+    props = _Props(ctx, node, _check_type(ctx, node), emitter=True)
+    if props.has("position") and props.has("to_world"):
+        raise ctx.error(node, "give either position or to_world, not both (as in Mitsuba)")
+    position = props.get("position", None, ("point",))
+    if position is None:
+        position = props.get("to_world", np.eye(4), ("transform",))[:3, 3]
+    intensity = props.colour("intensity", 1.0)
+    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
+    props.finish()
+    if np.any(intensity < 0):
+        raise ctx.error(node, f"intensity must be non-negative, got {_rgb(intensity)}")
+    return PointLight(np.asarray(position, float), _rgb(intensity), node.attrib.get("id", f"point@{node.line}"))
 
 
 def _envmap(ctx: _Context, node: Node) -> EnvironmentMap:

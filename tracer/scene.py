@@ -111,6 +111,15 @@ class Mesh:
 
 
 @dataclass(eq=False)
+class PointLight:
+    """Mitsuba's `point` emitter: `intensity` (radiant intensity) from `position` in every direction."""
+
+    position: np.ndarray
+    intensity: tuple[float, float, float]
+    name: str = ""
+
+
+@dataclass(eq=False)
 class EnvironmentMap:
     """Mitsuba's `envmap`: a latitude-longitude image of radiance (already times `scale`) around the scene,
     turned by `to_world` (tracer/envmap.py states the mapping)."""
@@ -162,6 +171,7 @@ class Scene:
     rr_depth: int = 5
     environment: tuple[float, float, float] | None = None   # a `constant` emitter's radiance, from all directions
     envmap: EnvironmentMap | None = None                     # or an `envmap` emitter
+    point_lights: list[PointLight] = field(default_factory=list)
     path: Path | None = None
 
     @property

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import drjit as dr
 
 from ..bsdf import diffuse_brdf
-from ..geometry import SceneGeometry, Surface
+from ..geometry import POINT_LIGHT, SceneGeometry, Surface
 from ..jit import INF, NO_PRIM, Array3f, Bool, Float
 
 
@@ -31,9 +31,9 @@ class DirectSample:
 
 def sample_direct(geo: SceneGeometry, surf: Surface, ns: Array3f, albedo: Array3f,
                   u_select: Float, u1: Float, u2: Float, active: Bool) -> DirectSample:
-    """One shadow ray from a diffuse point to a point drawn uniformly on an area light (eq. 10), or along
-    a direction drawn uniformly towards the environment (at infinity: distance 1 and cos_y 1 in the
-    formulas, the shadow ray unbounded)."""
+    """One shadow ray from a diffuse point to a point drawn uniformly on an area light (eq. 10), to a point
+    light (cos_y 1), or along a direction drawn towards the environment (at infinity: distance 1 and
+    cos_y 1 in the formulas, the shadow ray unbounded)."""
     ls = geo.sample_light(u_select, u1, u2)
     to_light = ls.y - surf.p
     dist2 = dr.squared_norm(to_light)
@@ -48,12 +48,16 @@ def sample_direct(geo: SceneGeometry, surf: Surface, ns: Array3f, albedo: Array3
     if geo.has_environment:
         cos_y = dr.select(infinite, 1.0, cos_y)
         dist = dr.select(infinite, INF, dist)
+    if geo.points:           # a point light: intensity / d^2, no surface to be seen at an angle
+        cos_y = dr.select(ls.prim == POINT_LIGHT, 1.0, cos_y)
     lit = active & (cos_x > 0) & (cos_y > 0) & (dist2 > 0)
     occluded = geo.occluded(surf.p, w, dist, surf.prim, ls.prim, lit)   # traced only where it counts
     geometry_term = cos_x * cos_y / dist2
     value = diffuse_brdf(albedo) * ls.radiance * (geometry_term / ls.pdf_area)
     ok = lit & ~occluded
     pdf_light = ls.pdf_area * dist2 / dr.maximum(cos_y, 1e-30)
+    if geo.points:           # a delta light: no other strategy can find it, its MIS weight is 1
+        pdf_light = dr.select(ls.prim == POINT_LIGHT, INF, pdf_light)
     return DirectSample(dr.select(ok, value, Array3f(0.0)), pdf_light, cos_x, occluded)
 
 

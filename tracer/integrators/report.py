@@ -75,7 +75,7 @@ def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int
     diffuse = surf.valid & lit & (kind == DIFFUSE)
     dr.eval(radiance, surf.p, surf.prim, surf.material, ns, kind, diffuse)
     rays = len(wave)
-    if geo.emitters and DIFFUSE in geo.kinds:
+    if geo.has_lights and DIFFUSE in geo.kinds:
         rays += _shadow_rays(geo, surf, ns, diffuse, wave, settings.direct, radiance, seed)
     return _spawn(geo, surf, ns, diffuse, kind, wave, vertex, max_depth, settings, seed), rays
 
