@@ -260,3 +260,21 @@ def test_all_refusals_listed_at_once(tmp_path):
     for (_, _, words) in REFUSED[:6] + REFUSED[-1:]:
         assert sum(words in e for e in errors) == 1, (words, errors)
     assert all(f"{path.name}:" in e for e in errors)
+
+
+def test_rotated_sphere_is_accepted(tmp_path):
+    """A rotation leaves off-diagonal round-off in to_world's Gram matrix: still a uniform scale."""
+    path = write_scene(tmp_path, '<shape type="sphere"><transform name="to_world"><rotate z="1" angle="225"/>'
+                                 '<scale value="0.5"/><translate z="1"/></transform></shape>')
+    (sphere,) = load_scene(path).spheres
+    assert sphere.radius == pytest.approx(0.5) and np.allclose(sphere.center, [0, 0, 1])
+
+
+def test_parameter_used_before_its_default_is_refused(tmp_path):
+    """Mitsuba substitutes parameters while reading: the <default> must come first (or -D)."""
+    header = HEADER.replace('<integer name="width" value="8"/>', '<integer name="width" value="$w"/>')
+    path = write_scene(tmp_path, '\n    <default name="w" value="8"/>', header=header)
+    (error,) = scene_errors(path)
+    assert_located(error, path, line_of(path, "$w"))
+    assert "$w is used before a <default>" in error
+    assert load_scene(path, w=5).camera.width == 5

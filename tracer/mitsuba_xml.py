@@ -231,9 +231,20 @@ def _expand(ctx: _Context, node: Node, resolver: list[Path], depth: int) -> None
         elif child.tag == "include":
             children += ctx.attempt(_include, ctx, child, node, resolver, depth, default=[])
         else:
+            _check_declared(ctx, child)
             _expand(ctx, child, resolver, -1)
             children.append(child)
     node.children = children
+
+
+def _check_declared(ctx: _Context, node: Node) -> None:
+    """Mitsuba substitutes $name while it reads the file: a parameter must be declared (by -D or a <default>)
+    before the element that uses it."""
+    for value in node.attrib.values():
+        for name in re.findall(r"\$([A-Za-z_][A-Za-z0-9_]*)", value):
+            if name not in ctx.params:
+                ctx.errors.append(str(ctx.error(node, f"parameter ${name} is used before a <default> declares it "
+                                                      f"(add <default name=\"{name}\" .../> above, or -D {name}=...)")))
 
 
 def _default(ctx: _Context, node: Node) -> None:
@@ -854,7 +865,7 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
             raise ctx.error(node, "area emitters are supported on rectangle and mesh shapes only")
         linear = to_world[:3, :3]
         scale = float(np.cbrt(abs(np.linalg.det(linear))))
-        if not np.allclose(linear.T @ linear, scale * scale * np.eye(3), rtol=1e-6, atol=0):
+        if not np.allclose(linear.T @ linear, scale * scale * np.eye(3), rtol=0, atol=1e-6 * scale * scale):
             raise ctx.error(node, "a sphere's to_world must scale uniformly (no shear or non-uniform scale)")
         center = transform.apply_point(to_world, center)[0]
         radius *= scale
