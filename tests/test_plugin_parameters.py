@@ -54,7 +54,8 @@ VALUES = {
     "k": '<rgb name="k" value="3.9, 2.4, 2.2"/>',
     "specular_reflectance": '<rgb name="specular_reflectance" value="0.5"/>',
     "specular_transmittance": '<rgb name="specular_transmittance" value="0.5"/>',
-    "int_ior": '<string name="int_ior" value="water"/>', "ext_ior": '<float name="ext_ior" value="1.1"/>',
+    "int_ior": '<string name="int_ior" value="water"/>', "nonlinear": '<boolean name="nonlinear" value="true"/>',
+    "diffuse_reflectance": '<rgb name="diffuse_reflectance" value="0.2, 0.3, 0.4"/>', "ext_ior": '<float name="ext_ior" value="1.1"/>',
     "radiance": '<rgb name="radiance" value="2, 3, 4"/>', "sampling_weight": '<float name="sampling_weight" value="2"/>',
     "scale": '<float name="scale" value="2"/>', "mis_compensation": '<boolean name="mis_compensation" value="true"/>',
     "bitmap": '<ref name="bitmap" id="nothing"/>',
@@ -82,7 +83,7 @@ EXPECTED = {
               "flip_tex_coords": NO_EFFECT, "shape_index": HONOURED},
     "bsdf": {"reflectance": HONOURED, "allow_transmission": REFUSED, "material": HONOURED, "eta": HONOURED,
              "k": HONOURED, "specular_reflectance": HONOURED, "specular_transmittance": REFUSED, "int_ior": HONOURED,
-             "ext_ior": HONOURED},
+             "ext_ior": HONOURED, "nonlinear": HONOURED, "diffuse_reflectance": HONOURED},
     "texture": {"color0": HONOURED, "color1": HONOURED, "to_uv": HONOURED},
     "emitter": {"radiance": HONOURED, "sampling_weight": NO_EFFECT, "to_world": NO_EFFECT,   # constant: uniform
                 "filename": HONOURED, "scale": HONOURED, "mis_compensation": NO_EFFECT, "bitmap": REFUSED,

@@ -66,3 +66,27 @@ def fresnel_conductor(cos_i: Float, eta: Array3f, k: Array3f) -> Array3f:
     term3, term4 = a2_plus_b2 * cos2 + sin2 * sin2, term2 * sin2
     r_p = r_s * (term3 - term4) / (term3 + term4)
     return 0.5 * (r_s + r_p)
+
+
+def fresnel_diffuse_reflectance(eta: float) -> float:
+    """Hemispherically averaged Fresnel reflectance of an interface of relative index eta, by the fits
+    Mitsuba uses: Egan and Hilgeman (1973) for eta < 1, d'Eon and Irving (2011) otherwise."""
+    inv = 1.0 / eta
+    if eta < 1.0:
+        return 0.0636 * inv + eta * (eta * -1.4399 + 0.7099) + 0.6681
+    return ((((-1.36881 * inv + 4.98554) * inv - 7.80989) * inv + 6.75335) * inv - 3.4793) * inv + 0.919317
+
+
+def plastic_specular_probability(f_i: Float, specular_weight: Float) -> Float:
+    """Probability that Mitsuba's smooth plastic samples its specular layer, given the Fresnel reflectance
+    at the incident angle and the specular share of the mean reflectances."""
+    spec = f_i * specular_weight
+    return spec / (spec + (1.0 - f_i) * (1.0 - specular_weight))
+
+
+def plastic_diffuse(albedo: Array3f, fdr_int: Float, nonlinear: Float, inv_eta2: Float, f_i: Float,
+                    f_o: Float) -> Array3f:
+    """The diffuse layer's f * pi of Mitsuba's smooth plastic: the base's reflectance seen through the
+    interface twice, with internal reflections summed (linearly, or per colour if `nonlinear`)."""
+    denominator = 1.0 - dr.select(nonlinear > 0, albedo * fdr_int, Array3f(fdr_int))
+    return albedo / denominator * (inv_eta2 * (1.0 - f_i) * (1.0 - f_o))

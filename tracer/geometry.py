@@ -11,16 +11,16 @@ import drjit as dr
 import numpy as np
 
 from . import intersect
-from .bsdf import fresnel_conductor
+from .bsdf import fresnel_conductor, fresnel_diffuse_reflectance
 from .bvh import BVHKernel
 from .jit import INF, NO_PRIM, Array3f, Bool, Float, UInt32, vec3
 from .sampling import square_to_uniform_sphere, square_to_uniform_triangle
 from .scene import BSDF, Mesh, Rectangle, Scene
 
-DIFFUSE, CONDUCTOR, DIELECTRIC = 0, 1, 2
+DIFFUSE, CONDUCTOR, DIELECTRIC, PLASTIC = 0, 1, 2, 3
 POINT_LIGHT = NO_PRIM - 1   # the `prim` of a light sample on a point light (NO_PRIM: on the environment)
 BVH_THRESHOLD = 56  # triangles above which a BVH beats the unrolled brute-force tests (measured: brute force wins at 48, the BVH at 64)
-_KIND_CODE = {"diffuse": DIFFUSE, "conductor": CONDUCTOR, "dielectric": DIELECTRIC}
+_KIND_CODE = {"diffuse": DIFFUSE, "conductor": CONDUCTOR, "dielectric": DIELECTRIC, "plastic": PLASTIC}
 
 
 @dataclass
@@ -129,8 +129,29 @@ class SceneGeometry:
         self.mat_ext_ior = Float([b.ext_ior for b in materials])
         if self.textured:
             self._build_texture_tables(materials)
+        if PLASTIC in self.kinds:
+            self._build_plastic_tables(materials)
         self.mat_eta = Float(np.array([b.eta for b in materials]).ravel())
         self.mat_k = Float(np.array([b.k for b in materials]).ravel())
+
+    def _build_plastic_tables(self, materials: list[BSDF]) -> None:
+        """Per material, for smooth plastic: specular reflectance, then eta, 1 / eta^2, the interior's
+        diffuse Fresnel reflectance, the specular sampling weight (Mitsuba's: the specular share of the two
+        mean reflectances) and whether the internal scattering is nonlinear."""
+        table = np.zeros((len(materials), 3 + 5))
+        for i, b in enumerate(materials):
+            if b.kind == "plastic":
+                eta = b.int_ior / b.ext_ior
+                s_mean, d_mean = np.mean(b.specular_reflectance), np.mean(b.reflectance)
+                table[i] = [*b.specular_reflectance, eta, 1.0 / (eta * eta), fresnel_diffuse_reflectance(1.0 / eta),
+                            s_mean / (d_mean + s_mean), float(b.nonlinear)]
+        self.mat_plastic = Float(table.ravel())
+
+    def plastic(self, material: UInt32, active: Bool) -> tuple[Array3f, list[Float]]:
+        """A plastic material's specular reflectance and [eta, 1 / eta^2, fdr_int, specular weight,
+        nonlinear] (see _build_plastic_tables)."""
+        spec = Array3f(*(dr.gather(Float, self.mat_plastic, material * 8 + k, active) for k in range(3)))
+        return spec, [dr.gather(Float, self.mat_plastic, material * 8 + 3 + k, active) for k in range(5)]
 
     def _build_texture_tables(self, materials: list[BSDF]) -> None:
         """Per triangle corner texture coordinates (a triangle's own (0,0), (1,0), (0,1) where its mesh has

@@ -34,7 +34,7 @@ SUPPORTED = {
     "rfilter": ("box", "gaussian", "tent"),
     "sampler": ("independent",),
     "shape": ("rectangle", "sphere", "obj", "ply", "serialized"),
-    "bsdf": ("diffuse", "twosided", "conductor", "dielectric"),
+    "bsdf": ("diffuse", "twosided", "conductor", "dielectric", "plastic"),
     "emitter": ("area", "constant", "envmap", "point"),
     "texture": ("checkerboard",),
 }
@@ -72,6 +72,7 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("bsdf", "twosided"): ("allow_transmission",),
     ("bsdf", "conductor"): ("material", "eta", "k", "specular_reflectance"),
     ("bsdf", "dielectric"): ("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"),
+    ("bsdf", "plastic"): ("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "nonlinear"),
     ("emitter", "area"): ("radiance", "sampling_weight"),
     ("texture", "checkerboard"): ("color0", "color1", "to_uv"),
     ("emitter", "point"): ("position", "to_world", "intensity", "sampling_weight"),
@@ -725,6 +726,18 @@ def _bsdf(ctx: _Context, node: Node) -> BSDF:
         if np.any(spec < 0) or np.any(spec > 1):
             raise ctx.error(node, f"specular_reflectance must lie in [0, 1], got {tuple(float(x) for x in spec)}")
         return BSDF("conductor", _rgb(spec), eta=_rgb(eta), k=_rgb(k))
+    if kind == "plastic":
+        ior = {k: _ior(ctx, props, k, d) for k, d in (("int_ior", "polypropylene"), ("ext_ior", "air"))}
+        rho, spec = props.colour("diffuse_reflectance", 0.5), props.colour("specular_reflectance", 1.0)
+        nonlinear = props.get("nonlinear", False, ("boolean",))
+        props.finish()
+        for name, value in (("diffuse_reflectance", rho), ("specular_reflectance", spec)):
+            if np.any(value < 0) or np.any(value > 1):
+                raise ctx.error(node, f"{name} must lie in [0, 1], got {_rgb(value)}")
+        if min(ior.values()) <= 0:
+            raise ctx.error(node, "indices of refraction must be positive")
+        return BSDF("plastic", _rgb(rho), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"], specular_reflectance=_rgb(spec),
+                    nonlinear=bool(nonlinear))
     ior = {k: _ior(ctx, props, k, d) for k, d in (("int_ior", "bk7"), ("ext_ior", "air"))}
     for name in ("specular_reflectance", "specular_transmittance"):
         if np.any(props.colour(name, 1.0) != 1.0):

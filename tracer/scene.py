@@ -31,7 +31,8 @@ class Checkerboard:
 @dataclass(frozen=True)
 class BSDF:
     """`diffuse` (Lambertian, one-sided unless `twosided`), `conductor` (smooth: `reflectance` times the exact
-    Fresnel reflectance of the complex index eta + i k; eta 0, k 1 is a perfect mirror) or `dielectric`."""
+    Fresnel reflectance of the complex index eta + i k; eta 0, k 1 is a perfect mirror), `dielectric`, or
+    `plastic` (Mitsuba's smooth plastic: a dielectric interface over a diffuse base of `reflectance`)."""
 
     kind: str
     reflectance: tuple[float, float, float] = (0.5, 0.5, 0.5)
@@ -41,6 +42,8 @@ class BSDF:
     eta: tuple[float, float, float] = (0.0, 0.0, 0.0)
     k: tuple[float, float, float] = (1.0, 1.0, 1.0)
     texture: Checkerboard | None = None     # a diffuse reflectance given by a texture (then not `reflectance`)
+    specular_reflectance: tuple[float, float, float] = (1.0, 1.0, 1.0)   # plastic's specular layer
+    nonlinear: bool = False                                              # plastic's internal scattering model
 
     @property
     def perfect_mirror(self) -> bool:
@@ -185,6 +188,8 @@ class Scene:
             plugin = "constant" if self.environment is not None else "envmap"
             out.append(f"{self.path}: the report estimator does not render the '{plugin}' emitter (an environment); "
                        "use --estimator path")
+        if estimator == "report" and any(b.kind == "plastic" for b in self.bsdfs):
+            out.append(f"{self.path}: the report estimator does not render the 'plastic' bsdf; use --estimator path")
         if estimator == "report" and any(b.texture is not None for b in self.bsdfs):
             out.append(f"{self.path}: the report estimator does not render the 'checkerboard' texture; "
                        "use --estimator path")
