@@ -89,7 +89,7 @@ EXPECTED = {
                 "filename": HONOURED, "scale": HONOURED, "mis_compensation": NO_EFFECT, "bitmap": REFUSED,
                 "position": HONOURED, "intensity": HONOURED},
 }
-SPECIAL = {("emitter", "envmap", "to_world"): HONOURED, ("emitter", "point", "to_world"): HONOURED,
+SPECIAL = {("shape", "disk", "silhouette_sampling_weight"): NO_EFFECT, ("emitter", "envmap", "to_world"): HONOURED, ("emitter", "point", "to_world"): HONOURED,
            ("shape", "sphere", "flip_normals"): REFUSED, ("bsdf", "dielectric", "specular_reflectance"): REFUSED}
 
 

@@ -14,7 +14,7 @@ from . import intersect
 from .bsdf import fresnel_conductor, fresnel_diffuse_reflectance
 from .bvh import BVHKernel
 from .jit import INF, NO_PRIM, Array3f, Bool, Float, UInt32, vec3
-from .sampling import square_to_uniform_sphere, square_to_uniform_triangle
+from .sampling import square_to_uniform_disk_concentric, square_to_uniform_sphere, square_to_uniform_triangle
 from .scene import BSDF, Mesh, Rectangle, Scene
 
 DIFFUSE, CONDUCTOR, DIELECTRIC, PLASTIC = 0, 1, 2, 3
@@ -261,6 +261,8 @@ class SceneGeometry:
                 continue
             du, dv = r.dual_edges
             t, x, y = intersect.ray_rectangle(o, d, vec3(r.center), vec3(du), vec3(dv), vec3(r.normal), t_min, INF)
+            if r.disk:
+                t = dr.select(dr.fma(x, x, y * y) > 1.0, INF, t)
             yield i, self._exclude(t, i, skip, target), x, y
         for j, v in enumerate(self.tri_vertices if self.bvh is None else ()):
             if only is not None and self.n_rects + j not in only:
@@ -412,7 +414,8 @@ class SceneGeometry:
 
     def _sample_rectangle(self, r: Rectangle, k: int, u1: Float, u2: Float) -> LightSample:
         e1, e2 = r.edges
-        y = vec3(r.center) + vec3(e1) * (2.0 * u1 - 1.0) + vec3(e2) * (2.0 * u2 - 1.0)
+        a, b = square_to_uniform_disk_concentric(u1, u2) if r.disk else (2.0 * u1 - 1.0, 2.0 * u2 - 1.0)
+        y = vec3(r.center) + vec3(e1) * a + vec3(e2) * b
         pdf = 1.0 / (self.n_lights * r.area)
         return LightSample(y, vec3(r.normal), vec3(r.radiance), Float(pdf), UInt32(self._prim_ranges[k][0]))
 

@@ -33,7 +33,7 @@ SUPPORTED = {
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian", "tent"),
     "sampler": ("independent",),
-    "shape": ("rectangle", "sphere", "obj", "ply", "serialized"),
+    "shape": ("rectangle", "disk", "sphere", "obj", "ply", "serialized"),
     "bsdf": ("diffuse", "twosided", "conductor", "dielectric", "plastic"),
     "emitter": ("area", "constant", "envmap", "point"),
     "texture": ("checkerboard",),
@@ -61,6 +61,7 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("rfilter", "tent"): ("radius",),
     ("sampler", "independent"): ("sample_count", "seed"),
     ("shape", "rectangle"): ("to_world", "flip_normals", "silhouette_sampling_weight"),
+    ("shape", "disk"): ("to_world", "flip_normals", "silhouette_sampling_weight"),
     ("shape", "sphere"): ("center", "radius", "to_world", "flip_normals", "silhouette_sampling_weight"),
     ("shape", "obj"): ("filename", "face_normals", "flip_normals", "flip_tex_coords", "to_world",
                        "silhouette_sampling_weight"),
@@ -861,11 +862,13 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
     flip = props.get("flip_normals", False, ("boolean",))
     props.ignore("silhouette_sampling_weight", "flip_tex_coords")   # differentiable rendering; textures
     name = node.attrib.get("id", f"{kind}@{node.line}")
-    if kind == "rectangle":
+    if kind in ("rectangle", "disk"):
         props.finish()
-        if flip:   # the normal is the image of local +z: mirror z, which leaves the rectangle in place
+        if kind == "disk" and bsdf.texture is not None:
+            raise ctx.error(node, "a texture on a disk is unsupported; supported on rectangle and serialized shapes")
+        if flip:   # the normal is the image of local +z: mirror z, which leaves the shape in place
             to_world = to_world @ np.diag([1.0, 1.0, -1.0, 1.0])
-        scene.rectangles.append(Rectangle(to_world, bsdf, radiance, name))
+        scene.rectangles.append(Rectangle(to_world, bsdf, radiance, name, disk=kind == "disk"))
     elif kind == "sphere":
         center = props.get("center", np.zeros(3), ("point",))
         radius = float(props.get("radius", 1.0, ("float", "integer")))
@@ -875,7 +878,7 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
         if bsdf.texture is not None:
             raise ctx.error(node, "a texture on a sphere is unsupported; supported on rectangle and serialized shapes")
         if emitters:
-            raise ctx.error(node, "area emitters are supported on rectangle and mesh shapes only")
+            raise ctx.error(node, "area emitters are supported on rectangle, disk and mesh shapes only")
         linear = to_world[:3, :3]
         scale = float(np.cbrt(abs(np.linalg.det(linear))))
         if not np.allclose(linear.T @ linear, scale * scale * np.eye(3), rtol=0, atol=1e-6 * scale * scale):

@@ -54,12 +54,14 @@ class BSDF:
 
 @dataclass(eq=False)
 class Rectangle:
-    """Mitsuba's `rectangle`: [-1,1]^2 in the local xy-plane, normal +z, placed by `to_world`."""
+    """Mitsuba's `rectangle`: [-1,1]^2 in the local xy-plane, normal +z, placed by `to_world`; with `disk`,
+    Mitsuba's `disk`: the unit disk in that plane."""
 
     to_world: np.ndarray
     bsdf: BSDF
     radiance: tuple[float, float, float] | None = None
     name: str = ""
+    disk: bool = False
 
     @property
     def center(self) -> np.ndarray:
@@ -83,7 +85,7 @@ class Rectangle:
     @property
     def area(self) -> float:
         e1, e2 = self.edges
-        return 4.0 * float(np.linalg.norm(np.cross(e1, e2)))
+        return (np.pi if self.disk else 4.0) * float(np.linalg.norm(np.cross(e1, e2)))
 
 
 @dataclass(eq=False)
