@@ -61,7 +61,8 @@ VALUES = {
     "bitmap": '<ref name="bitmap" id="nothing"/>',
     "color0": '<rgb name="color0" value="0.1"/>', "color1": '<rgb name="color1" value="0.9"/>',
     "to_uv": '<transform name="to_uv"><scale value="2"/></transform>',
-    "position": '<point name="position" x="1" y="2" z="3"/>', "intensity": '<rgb name="intensity" value="2, 3, 4"/>',
+    "position": '<point name="position" x="1" y="2" z="3"/>', "p0": '<point name="p0" x="1" y="2" z="3"/>',
+    "p1": '<point name="p1" x="1" y="2" z="3"/>', "intensity": '<rgb name="intensity" value="2, 3, 4"/>',
 }
 HONOURED = "honoured"
 NO_EFFECT = "no effect on the image"
@@ -80,7 +81,7 @@ EXPECTED = {
     "sampler": {"sample_count": HONOURED, "seed": HONOURED},
     "shape": {"to_world": HONOURED, "flip_normals": HONOURED, "silhouette_sampling_weight": NO_EFFECT,
               "center": HONOURED, "radius": HONOURED, "filename": HONOURED, "face_normals": HONOURED,
-              "flip_tex_coords": NO_EFFECT, "shape_index": HONOURED},
+              "flip_tex_coords": NO_EFFECT, "shape_index": HONOURED, "p0": HONOURED, "p1": HONOURED},
     "bsdf": {"reflectance": HONOURED, "allow_transmission": REFUSED, "material": HONOURED, "eta": HONOURED,
              "k": HONOURED, "specular_reflectance": HONOURED, "specular_transmittance": REFUSED, "int_ior": HONOURED,
              "ext_ior": HONOURED, "nonlinear": HONOURED, "diffuse_reflectance": HONOURED},
@@ -89,7 +90,7 @@ EXPECTED = {
                 "filename": HONOURED, "scale": HONOURED, "mis_compensation": NO_EFFECT, "bitmap": REFUSED,
                 "position": HONOURED, "intensity": HONOURED},
 }
-SPECIAL = {("shape", "disk", "silhouette_sampling_weight"): NO_EFFECT, ("emitter", "envmap", "to_world"): HONOURED, ("emitter", "point", "to_world"): HONOURED,
+SPECIAL = {("shape", "cylinder", "silhouette_sampling_weight"): NO_EFFECT, ("shape", "disk", "silhouette_sampling_weight"): NO_EFFECT, ("emitter", "envmap", "to_world"): HONOURED, ("emitter", "point", "to_world"): HONOURED,
            ("shape", "sphere", "flip_normals"): REFUSED, ("bsdf", "dielectric", "specular_reflectance"): REFUSED}
 
 
@@ -143,6 +144,7 @@ def _fingerprint(s) -> bytes:
                          [(m.vertices.tolist(), m.faces.tolist(), None if m.normals is None else m.normals.tolist(),
                            m.bsdf, m.radiance) for m in s.meshes],
                          [(x.center.tolist(), x.radius, x.bsdf) for x in s.spheres], s.environment,
+                         [(c.to_world.tolist(), c.flipped) for c in s.cylinders],
                          None if s.envmap is None else (s.envmap.image.tolist(), s.envmap.to_world.tolist()),
                          [(light.position.tolist(), light.intensity) for light in s.point_lights]))
 

@@ -67,7 +67,9 @@ class SceneGeometry:
             else np.zeros((0, 3, 3))
         self.n_rects, self.n_tris = len(self.rects), len(self.tri_vertices)
         self.sphere_base = self.n_rects + self.n_tris
-        self.n_prims = self.sphere_base + len(self.spheres)
+        self.cylinders = scene.cylinders
+        self.cylinder_base = self.sphere_base + len(self.spheres)
+        self.n_prims = self.cylinder_base + len(self.cylinders)
         self.materials: list[BSDF] = scene.bsdfs
         self.kinds = {_KIND_CODE[b.kind] for b in self.materials}
         self.textured = any(b.texture is not None for b in self.materials)
@@ -106,6 +108,8 @@ class SceneGeometry:
             base += len(m.faces)
         for i, s in enumerate(self.spheres):
             material[self.sphere_base + i] = self.materials.index(s.bsdf)
+        for i, c in enumerate(self.cylinders):
+            material[self.cylinder_base + i] = self.materials.index(c.bsdf)
         self._prim_ranges = self._emitter_prim_ranges()
         for k, e in enumerate(self.emitters):
             lo, hi = self._prim_ranges[k]
@@ -196,6 +200,7 @@ class SceneGeometry:
         points += [r.center + a * e1 + b * e2 for r in self.rects for e1, e2 in [r.edges]
                    for a in (-1, 1) for b in (-1, 1)]
         points += [light.position for light in self.points]     # shadow rays end there too
+        points += [c.corners for c in self.cylinders]
         points = np.vstack([np.atleast_2d(p) for p in points if np.size(p)]) if any(np.size(p) for p in points) \
             else np.zeros((0, 3))
         eps = 1e-6 * self.scene.extent()
@@ -273,6 +278,10 @@ class SceneGeometry:
             i = self.sphere_base + k
             t = intersect.ray_sphere(o, d, vec3(s.center), s.radius, t_min, INF, skip == i)
             yield i, (t if target is None else dr.select(target == i, INF, t)), None, None
+        for k, c in enumerate(self.cylinders):
+            i = self.cylinder_base + k
+            t = intersect.ray_cylinder(o, d, np.linalg.inv(c.to_world), t_min, INF, skip == i)
+            yield i, (t if target is None else dr.select(target == i, INF, t)), None, None
 
     @staticmethod
     def _exclude(t, i, skip, target):
@@ -288,9 +297,11 @@ class SceneGeometry:
         p = hit.p
         n = dr.gather(Array3f, self.prim_normal, prim, valid)
         if self.spheres:
-            is_sphere = prim >= self.sphere_base
+            is_sphere = (prim >= self.sphere_base) & (prim < self.cylinder_base)
             center, radius = self._sphere_select(prim)
             n = dr.select(is_sphere, dr.normalize(p - center), n)  # unit even where p is off the surface
+        for k, c in enumerate(self.cylinders):
+            n = dr.select(prim == self.cylinder_base + k, self._cylinder_normal(c, p), n)
         ns = n
         if self.smooth:
             tri = prim - self.n_rects
@@ -316,6 +327,15 @@ class SceneGeometry:
             u = dr.select(is_tri, c[0] * b0 + c[2] * hit.b1 + c[4] * hit.b2, u)
             v = dr.select(is_tri, c[1] * b0 + c[3] * hit.b1 + c[5] * hit.b2, v)
         return u, v
+
+    @staticmethod
+    def _cylinder_normal(c, p: Array3f) -> Array3f:
+        """The tube's normal at p: the local radial direction (x, y, 0) taken to world space as a normal,
+        outward unless the cylinder is flipped."""
+        m = np.linalg.inv(c.to_world)
+        x, y = (p.x * float(m[r, 0]) + p.y * float(m[r, 1]) + p.z * float(m[r, 2]) + float(m[r, 3]) for r in range(2))
+        sign = -1.0 if c.flipped else 1.0
+        return dr.normalize(Array3f(*((x * float(m[0, k]) + y * float(m[1, k])) * sign for k in range(3))))
 
     def _sphere_select(self, prim: UInt32) -> tuple[Array3f, Float]:
         center, radius = vec3(self.spheres[0].center), Float(self.spheres[0].radius)
@@ -443,7 +463,8 @@ class SceneGeometry:
         """What the traced kernel contains, for `tracer info`."""
         tris = "in a BVH" if self.bvh is not None else "brute force"
         lines = [f"intersection: {self.n_rects} rectangles (ray-plane, eq. 2-4), {self.n_tris} triangles "
-                 f"(Moeller-Trumbore, {tris}), {len(self.spheres)} spheres (quadratic)"]
+                 f"(Moeller-Trumbore, {tris}), {len(self.spheres)} spheres (quadratic)"
+                 + (f", {len(self.cylinders)} cylinders (quadratic)" if self.cylinders else "")]
         lines.append(f"shading normals: {'interpolated on smooth meshes' if self.smooth else 'geometric only'}")
         lines.append(f"materials: {', '.join(sorted({b.kind for b in self.materials}))}")
         env = " and a constant environment" if self.environment is not None else (

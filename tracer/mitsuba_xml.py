@@ -23,8 +23,8 @@ from .film import ReconstructionFilter
 from .ior import named_conductor, named_ior
 from .meshes import MeshError, read_obj, read_ply, vertex_normals
 from .envmap import EnvmapError, read_exr_rgb
-from .scene import (BSDF, Camera, Checkerboard, EnvironmentMap, Mesh, PointLight, Rectangle, Scene, SceneError,
-                    Sphere)
+from .scene import (BSDF, Camera, Checkerboard, Cylinder, EnvironmentMap, Mesh, PointLight, Rectangle, Scene,
+                    SceneError, Sphere)
 from .serialized import read_serialized
 
 SUPPORTED = {
@@ -33,7 +33,7 @@ SUPPORTED = {
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian", "tent"),
     "sampler": ("independent",),
-    "shape": ("rectangle", "disk", "sphere", "obj", "ply", "serialized"),
+    "shape": ("rectangle", "disk", "sphere", "cylinder", "obj", "ply", "serialized"),
     "bsdf": ("diffuse", "twosided", "conductor", "dielectric", "plastic"),
     "emitter": ("area", "constant", "envmap", "point"),
     "texture": ("checkerboard",),
@@ -62,6 +62,7 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("sampler", "independent"): ("sample_count", "seed"),
     ("shape", "rectangle"): ("to_world", "flip_normals", "silhouette_sampling_weight"),
     ("shape", "disk"): ("to_world", "flip_normals", "silhouette_sampling_weight"),
+    ("shape", "cylinder"): ("p0", "p1", "radius", "to_world", "flip_normals", "silhouette_sampling_weight"),
     ("shape", "sphere"): ("center", "radius", "to_world", "flip_normals", "silhouette_sampling_weight"),
     ("shape", "obj"): ("filename", "face_normals", "flip_normals", "flip_tex_coords", "to_world",
                        "silhouette_sampling_weight"),
@@ -869,6 +870,8 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
         if flip:   # the normal is the image of local +z: mirror z, which leaves the shape in place
             to_world = to_world @ np.diag([1.0, 1.0, -1.0, 1.0])
         scene.rectangles.append(Rectangle(to_world, bsdf, radiance, name, disk=kind == "disk"))
+    elif kind == "cylinder":
+        scene.cylinders.append(_cylinder(ctx, node, props, to_world, flip, bsdf, bool(emitters), name))
     elif kind == "sphere":
         center = props.get("center", np.zeros(3), ("point",))
         radius = float(props.get("radius", 1.0, ("float", "integer")))
@@ -890,6 +893,36 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
         scene.spheres.append(Sphere(center, radius, bsdf, name))
     else:
         scene.meshes.append(_mesh(ctx, node, kind, props, to_world, flip, bsdf, radiance, name))
+
+
+def _cylinder(ctx, node, props, to_world, flip, bsdf, emitter, name) -> Cylinder:
+    """Mitsuba's `cylinder`: the frame to_world * translate(p0) * (a frame along p1 - p0) * scale(r, r, |p1 - p0|)."""
+    p0 = props.get("p0", np.zeros(3), ("point",))
+    p1 = props.get("p1", np.array([0.0, 0.0, 1.0]), ("point",))
+    radius = float(props.get("radius", 1.0, ("float", "integer")))
+    props.finish()
+    if emitter:
+        raise ctx.error(node, "area emitters are supported on rectangle, disk and mesh shapes only")
+    if bsdf.texture is not None:
+        raise ctx.error(node, "a texture on a cylinder is unsupported; supported on rectangle and serialized shapes")
+    axis = p1 - p0
+    length = float(np.linalg.norm(axis))
+    if length == 0 or radius <= 0:
+        raise ctx.error(node, f"a cylinder needs p0 != p1 and a positive radius, got length {length}, radius {radius}")
+    z = axis / length
+    x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+    x /= np.linalg.norm(x)
+    frame = np.eye(4)
+    frame[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1) @ np.diag([radius, radius, length])
+    frame[:3, 3] = p0
+    m = to_world @ frame
+    cols = m[:3, :3].T
+    tol = 1e-6 * float(np.max(np.abs(cols)) ** 2)
+    if (abs(cols[0] @ cols[1]) > tol or abs(cols[0] @ cols[2]) > tol or abs(cols[1] @ cols[2]) > tol
+            or abs(cols[0] @ cols[0] - cols[1] @ cols[1]) > tol or np.linalg.det(m[:3, :3]) <= 0):
+        raise ctx.error(node, "a cylinder's to_world must keep it circular (equal scale across the axis, no shear "
+                              "or mirroring)")
+    return Cylinder(m, bsdf, flip, name)
 
 
 def _mesh(ctx, node, kind, props, to_world, flip, bsdf, radiance, name) -> Mesh:

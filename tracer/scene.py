@@ -98,6 +98,24 @@ class Sphere:
 
 
 @dataclass(eq=False)
+class Cylinder:
+    """Mitsuba's `cylinder`: the open tube x^2 + y^2 = 1, 0 <= z <= 1 of the local frame `to_world` (which
+    already holds p0, p1 and the radius; it scales x and y alike), normals outward unless `flipped`."""
+
+    to_world: np.ndarray
+    bsdf: BSDF
+    flipped: bool = False
+    name: str = ""
+    radiance: None = None
+
+    @property
+    def corners(self) -> np.ndarray:
+        """The corners of its local bounding box [-1, 1]^2 x [0, 1], in world space."""
+        local = np.array([[x, y, z, 1.0] for x in (-1, 1) for y in (-1, 1) for z in (0, 1)])
+        return (local @ self.to_world.T)[:, :3]
+
+
+@dataclass(eq=False)
 class Mesh:
     """A triangle mesh in world space; `normals` are per-vertex shading normals, None for face normals."""
 
@@ -170,6 +188,7 @@ class Scene:
     rectangles: list[Rectangle] = field(default_factory=list)
     meshes: list[Mesh] = field(default_factory=list)
     spheres: list[Sphere] = field(default_factory=list)
+    cylinders: list[Cylinder] = field(default_factory=list)
     spp: int = 4
     seed: int = 0
     max_depth: int = -1
@@ -200,7 +219,7 @@ class Scene:
     @property
     def bsdfs(self) -> list[BSDF]:
         seen: list[BSDF] = []
-        for s in (*self.rectangles, *self.meshes, *self.spheres):
+        for s in (*self.rectangles, *self.meshes, *self.spheres, *self.cylinders):
             if s.bsdf not in seen:
                 seen.append(s.bsdf)
         return seen
@@ -214,6 +233,7 @@ class Scene:
         pts = [r.center + s * e for r in self.rectangles for e in r.edges for s in (-1, 1)]
         pts += [m.vertices for m in self.meshes]
         pts += [np.stack([s.center - s.radius, s.center + s.radius]) for s in self.spheres]
+        pts += [c.corners for c in self.cylinders]
         if not pts:
             return 1.0
         allp = np.vstack([np.atleast_2d(p) for p in pts])
