@@ -278,3 +278,22 @@ def test_parameter_used_before_its_default_is_refused(tmp_path):
     assert_located(error, path, line_of(path, "$w"))
     assert "$w is used before a <default>" in error
     assert load_scene(path, w=5).camera.width == 5
+
+
+def test_include_of_a_plugin_file_and_paths_of_included_scenes(tmp_path):
+    """An included file whose root is a plugin becomes that plugin; a <path> inside an included scene
+    serves that file's own includes, not the including scene's meshes (as in Mitsuba)."""
+    (tmp_path / "lib").mkdir()
+    (tmp_path / "lib" / "paint.xml").write_text('<bsdf type="diffuse" version="3.0.0">'
+                                                '<rgb name="reflectance" value="0.1, 0.2, 0.3"/></bsdf>')
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "tri.obj").write_text(TRI)
+    (tmp_path / "lib" / "part.xml").write_text('<scene version="3.0.0"><path value="../meshes"/>'
+                                               '<shape type="rectangle"><include filename="paint.xml"/></shape>'
+                                               '</scene>')
+    ok = write_scene(tmp_path, '<include filename="lib/part.xml"/>', name="ok.xml")
+    assert load_scene(ok).rectangles[0].bsdf.reflectance == (0.1, 0.2, 0.3)
+    bad = write_scene(tmp_path, '<include filename="lib/part.xml"/>\n    <shape type="obj">'
+                                '<string name="filename" value="tri.obj"/></shape>', name="bad.xml")
+    (error,) = scene_errors(bad)
+    assert "'tri.obj' not found" in error

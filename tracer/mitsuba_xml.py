@@ -82,6 +82,7 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("emitter", "envmap"): ("filename", "bitmap", "scale", "to_world", "mis_compensation", "sampling_weight"),
 }
 FLOAT32_MAX = float(np.finfo(np.float32).max)
+DEFAULT_FILM = {"width": 768, "height": 576, "rfilter": ReconstructionFilter("gaussian")}   # Mitsuba's hdrfilm
 
 
 @dataclass
@@ -597,7 +598,7 @@ def _camera(ctx: _Context, node: Node) -> tuple[Camera, dict]:
     props = _Props(ctx, node, kind)
     films = props.children("film")
     samplers = props.children("sampler")
-    film = ctx.built_once(films[0], lambda n: _film(ctx, n)) if films else _film_defaults(ctx, node)
+    film = ctx.built_once(films[0], lambda n: _film(ctx, n)) if films else dict(DEFAULT_FILM)
     sampler = ctx.built_once(samplers[0], lambda n: _sampler(ctx, n)) if samplers else {}
     w, h = film["width"], film["height"]
     if props.has("fov") and props.has("focal_length"):
@@ -630,10 +631,6 @@ def _camera(ctx: _Context, node: Node) -> tuple[Camera, dict]:
     props.finish()
     camera = Camera(to_world, float(fov), fov_axis, float(near), float(far), w, h, film["rfilter"])
     return camera, sampler
-
-
-def _film_defaults(ctx: _Context, node: Node) -> dict:
-    return {"width": 768, "height": 576, "rfilter": ReconstructionFilter("gaussian")}
 
 
 def _film(ctx: _Context, node: Node) -> dict:
