@@ -626,7 +626,9 @@ def _camera(ctx: _Context, node: Node) -> tuple[Camera, dict]:
     for name in ("principal_point_offset_x", "principal_point_offset_y"):
         if props.get(name, 0.0, ("float", "integer")) != 0:
             raise ctx.error(props.values[name], f"{name} other than 0 is not supported by the tracer")
-    props.ignore("shutter_open", "shutter_close")    # nothing in the scene moves
+    shutter = [props.get(k, 0.0, ("float", "integer")) for k in ("shutter_open", "shutter_close")]
+    if shutter[0] > shutter[1]:           # nothing in the scene moves: only Mitsuba's own check matters
+        raise ctx.error(node, f"shutter_open ({shutter[0]}) must not exceed shutter_close ({shutter[1]}), as in Mitsuba")
     to_world = props.get("to_world", np.eye(4), ("transform",))
     props.finish()
     camera = Camera(to_world, float(fov), fov_axis, float(near), float(far), w, h, film["rfilter"])
