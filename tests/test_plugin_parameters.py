@@ -90,8 +90,14 @@ EXPECTED = {
                 "filename": HONOURED, "scale": HONOURED, "mis_compensation": NO_EFFECT, "bitmap": REFUSED,
                 "position": HONOURED, "intensity": HONOURED},
 }
-SPECIAL = {("shape", "cylinder", "silhouette_sampling_weight"): NO_EFFECT, ("shape", "disk", "silhouette_sampling_weight"): NO_EFFECT, ("emitter", "envmap", "to_world"): HONOURED, ("emitter", "point", "to_world"): HONOURED,
-           ("shape", "sphere", "flip_normals"): REFUSED, ("bsdf", "dielectric", "specular_reflectance"): REFUSED}
+SPECIAL = {   # (tag, kind, parameter) whose handling differs from the tag's other plugins
+    ("shape", "cylinder", "silhouette_sampling_weight"): NO_EFFECT,
+    ("shape", "disk", "silhouette_sampling_weight"): NO_EFFECT,
+    ("emitter", "envmap", "to_world"): HONOURED,
+    ("emitter", "point", "to_world"): HONOURED,
+    ("shape", "sphere", "flip_normals"): REFUSED,
+    ("bsdf", "dielectric", "specular_reflectance"): REFUSED,
+}
 
 
 def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
