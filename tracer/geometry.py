@@ -15,7 +15,7 @@ from .bsdf import fresnel_conductor, fresnel_diffuse_reflectance
 from .bvh import BVHKernel
 from .jit import INF, NO_PRIM, Array3f, Bool, Float, UInt32, vec3
 from .sampling import square_to_uniform_disk_concentric, square_to_uniform_sphere, square_to_uniform_triangle
-from .scene import BSDF, Mesh, Rectangle, Scene
+from .scene import BSDF, Mesh, Rectangle, Scene, Sphere
 
 DIFFUSE, CONDUCTOR, DIELECTRIC, PLASTIC = 0, 1, 2, 3
 POINT_LIGHT = NO_PRIM - 1   # the `prim` of a light sample on a point light (NO_PRIM: on the environment)
@@ -113,7 +113,7 @@ class SceneGeometry:
         self._prim_ranges = self._emitter_prim_ranges()
         for k, e in enumerate(self.emitters):
             lo, hi = self._prim_ranges[k]
-            area = e.area if isinstance(e, Rectangle) else e.triangle_areas.sum()
+            area = e.triangle_areas.sum() if isinstance(e, Mesh) else e.area
             radiance[lo:hi] = e.radiance
             light_pdf[lo:hi] = 1.0 / (self.n_lights * area) if area > 0 else 0.0
         self.prim_normal = Float(normals.ravel())
@@ -177,10 +177,13 @@ class SceneGeometry:
     def _emitter_prim_ranges(self) -> list[tuple[int, int]]:
         return [self.prim_range(e) for e in self.emitters]
 
-    def prim_range(self, shape: Rectangle | Mesh) -> tuple[int, int]:
-        """The primitive indices [lo, hi) of a rectangle or a mesh of the scene."""
+    def prim_range(self, shape: Rectangle | Mesh | Sphere) -> tuple[int, int]:
+        """The primitive indices [lo, hi) of a rectangle, a mesh or a sphere of the scene."""
         if isinstance(shape, Rectangle):
             i = self.rects.index(shape)
+            return i, i + 1
+        if isinstance(shape, Sphere):
+            i = self.sphere_base + self.spheres.index(shape)
             return i, i + 1
         base = self.n_rects
         for m in self.scene.meshes:
@@ -420,7 +423,12 @@ class SceneGeometry:
         index = dr.minimum(UInt32(u_select * n_lights), n_lights - 1)
         out = None
         for k, e in enumerate(self.emitters):
-            s = self._sample_rectangle(e, k, u1, u2) if isinstance(e, Rectangle) else self._sample_mesh(e, k, u1, u2)
+            if isinstance(e, Rectangle):
+                s = self._sample_rectangle(e, k, u1, u2)
+            elif isinstance(e, Sphere):
+                s = self._sample_sphere(e, k, u1, u2)
+            else:
+                s = self._sample_mesh(e, k, u1, u2)
             out = s if out is None else _select_sample(index == k, s, out)
         for k, light in enumerate(self.points):
             s = LightSample(vec3(light.position), Array3f(0.0), vec3(light.intensity), Float(1.0 / n_lights),
@@ -438,6 +446,12 @@ class SceneGeometry:
         y = vec3(r.center) + vec3(e1) * a + vec3(e2) * b
         pdf = 1.0 / (self.n_lights * r.area)
         return LightSample(y, vec3(r.normal), vec3(r.radiance), Float(pdf), UInt32(self._prim_ranges[k][0]))
+
+    def _sample_sphere(self, s: Sphere, k: int, u1: Float, u2: Float) -> LightSample:
+        n = square_to_uniform_sphere(u1, u2)
+        pdf = 1.0 / (self.n_lights * s.area)
+        return LightSample(dr.fma(n, s.radius, vec3(s.center)), n, vec3(s.radiance), Float(pdf),
+                           UInt32(self._prim_ranges[k][0]))
 
     def _sample_mesh(self, m: Mesh, k: int, u1: Float, u2: Float) -> LightSample:
         areas = m.triangle_areas

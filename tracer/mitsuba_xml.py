@@ -879,8 +879,6 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
             raise ctx.error(props.values["flip_normals"], "flip_normals on a sphere is unsupported")
         if bsdf.texture is not None:
             raise ctx.error(node, "a texture on a sphere is unsupported; supported on rectangle and serialized shapes")
-        if emitters:
-            raise ctx.error(node, "area emitters are supported on rectangle, disk and mesh shapes only")
         linear = to_world[:3, :3]
         scale = float(np.cbrt(abs(np.linalg.det(linear))))
         if not np.allclose(linear.T @ linear, scale * scale * np.eye(3), rtol=0, atol=1e-6 * scale * scale):
@@ -889,7 +887,7 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
         radius *= scale
         if radius <= 0:
             raise ctx.error(node, f"sphere radius must be positive, got {radius}")
-        scene.spheres.append(Sphere(center, radius, bsdf, name))
+        scene.spheres.append(Sphere(center, radius, bsdf, name, radiance))
     else:
         scene.meshes.append(_mesh(ctx, node, kind, props, to_world, flip, bsdf, radiance, name))
 
@@ -901,7 +899,7 @@ def _cylinder(ctx, node, props, to_world, flip, bsdf, emitter, name) -> Cylinder
     radius = float(props.get("radius", 1.0, ("float", "integer")))
     props.finish()
     if emitter:
-        raise ctx.error(node, "area emitters are supported on rectangle, disk and mesh shapes only")
+        raise ctx.error(node, "area emitters are supported on rectangle, disk, sphere and mesh shapes only")
     if bsdf.texture is not None:
         raise ctx.error(node, "a texture on a cylinder is unsupported; supported on rectangle and serialized shapes")
     axis = p1 - p0

@@ -94,7 +94,11 @@ class Sphere:
     radius: float
     bsdf: BSDF
     name: str = ""
-    radiance: None = None
+    radiance: tuple[float, float, float] | None = None   # an area light on it emits outward
+
+    @property
+    def area(self) -> float:
+        return 4.0 * np.pi * self.radius * self.radius
 
 
 @dataclass(eq=False)
@@ -199,8 +203,8 @@ class Scene:
     path: Path | None = None
 
     @property
-    def emitters(self) -> list[Rectangle | Mesh]:
-        return [s for s in (*self.rectangles, *self.meshes) if s.radiance is not None]
+    def emitters(self) -> list[Rectangle | Mesh | Sphere]:
+        return [s for s in (*self.rectangles, *self.meshes, *self.spheres) if s.radiance is not None]
 
     def estimator_refusals(self, estimator: str) -> list[str]:
         """What the named estimator cannot render correctly in this scene, one line each (empty: nothing)."""
