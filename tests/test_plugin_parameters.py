@@ -62,7 +62,8 @@ VALUES = {
     "color0": '<rgb name="color0" value="0.1"/>', "color1": '<rgb name="color1" value="0.9"/>',
     "to_uv": '<transform name="to_uv"><scale value="2"/></transform>',
     "position": '<point name="position" x="1" y="2" z="3"/>', "p0": '<point name="p0" x="1" y="2" z="3"/>',
-    "p1": '<point name="p1" x="1" y="2" z="3"/>', "intensity": '<rgb name="intensity" value="2, 3, 4"/>',
+    "p1": '<point name="p1" x="1" y="2" z="3"/>', "cutoff_angle": '<float name="cutoff_angle" value="30"/>',
+    "beam_width": '<float name="beam_width" value="10"/>', "texture": '<texture type="checkerboard" name="texture"/>', "intensity": '<rgb name="intensity" value="2, 3, 4"/>',
 }
 HONOURED = "honoured"
 NO_EFFECT = "no effect on the image"
@@ -88,13 +89,15 @@ EXPECTED = {
     "texture": {"color0": HONOURED, "color1": HONOURED, "to_uv": HONOURED},
     "emitter": {"radiance": HONOURED, "sampling_weight": NO_EFFECT, "to_world": NO_EFFECT,   # constant: uniform
                 "filename": HONOURED, "scale": HONOURED, "mis_compensation": NO_EFFECT, "bitmap": REFUSED,
-                "position": HONOURED, "intensity": HONOURED},
+                "position": HONOURED, "intensity": HONOURED, "cutoff_angle": HONOURED, "beam_width": HONOURED,
+                "texture": REFUSED},
 }
 SPECIAL = {   # (tag, kind, parameter) whose handling differs from the tag's other plugins
     ("shape", "cylinder", "silhouette_sampling_weight"): NO_EFFECT,
     ("shape", "disk", "silhouette_sampling_weight"): NO_EFFECT,
     ("emitter", "envmap", "to_world"): HONOURED,
     ("emitter", "point", "to_world"): HONOURED,
+    ("emitter", "spot", "to_world"): HONOURED,
     ("shape", "sphere", "flip_normals"): REFUSED,
     ("bsdf", "dielectric", "specular_reflectance"): REFUSED,
 }
@@ -129,7 +132,7 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
     elif tag == "texture":
         body = (f'<shape type="rectangle"><bsdf type="diffuse"><texture type="{kind}" name="reflectance">{p}'
                 '</texture></bsdf></shape>')
-    elif kind in ("constant", "point"):
+    elif kind in ("constant", "point", "spot"):
         body = f'<emitter type="{kind}">{p}</emitter>'
     elif kind == "envmap":
         file = "b.exr" if param == "filename" else "a.exr"
@@ -152,7 +155,7 @@ def _fingerprint(s) -> bytes:
                          [(x.center.tolist(), x.radius, x.bsdf) for x in s.spheres], s.environment,
                          [(c.to_world.tolist(), c.flipped) for c in s.cylinders],
                          None if s.envmap is None else (s.envmap.image.tolist(), s.envmap.to_world.tolist()),
-                         [(light.position.tolist(), light.intensity) for light in s.point_lights]))
+                         [(light.position.tolist(), light.intensity, light.cone()) for light in s.point_lights]))
 
 
 def _outcome(tmp_path, tag, kind, param) -> str:
@@ -206,11 +209,11 @@ def _mitsuba_xml(tmp_path, tag: str, kind: str, param: str) -> str:
     return f'<{tag} version="3.0.0" type="{kind}">{value}</{tag}>'
 
 
-@pytest.mark.parametrize("tag, kind, param", [c for c in CASES if c[2] not in ("bitmap", "srf")],
-                         ids=[f"{t}-{k}-{p}" for t, k, p in CASES if p not in ("bitmap", "srf")])
+@pytest.mark.parametrize("tag, kind, param", [c for c in CASES if c[2] not in ("bitmap", "srf", "texture")],
+                         ids=[f"{t}-{k}-{p}" for t, k, p in CASES if p not in ("bitmap", "srf", "texture")])
 def test_mitsuba_reads_every_listed_parameter(tmp_path, tag, kind, param):
     """The table is Mitsuba's: none of its parameters is one Mitsuba 3.9.1 calls unreferenced (a value it
-    refuses for another reason still shows the parameter is read). `bitmap` and `srf` take objects."""
+    refuses for another reason still shows the parameter is read). `bitmap`, `srf`, `texture` take objects."""
     from .test_xml_features import mitsuba
     mi = mitsuba()
     (tmp_path / "a.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")

@@ -56,6 +56,7 @@ class LightSample:
     radiance: Array3f
     pdf_area: Float   # includes the choice of the light among the scene's lights
     prim: UInt32
+    cone: tuple | None = None   # a spot light's (cos cutoff, cos beam width, cutoff, 1 / transition width)
 
 
 class SceneGeometry:
@@ -80,6 +81,7 @@ class SceneGeometry:
         self.envmap = _EnvmapKernel(scene.envmap) if scene.envmap is not None else None
         self.has_environment = self.environment is not None or self.envmap is not None
         self.points = scene.point_lights
+        self.spots = any(light.spot is not None for light in self.points)
         # lights a shadow ray may be sent to, chosen uniformly: the area lights, point lights, the environment
         self.n_lights = len(self.emitters) + len(self.points) + self.has_environment
         self.has_lights = self.n_lights > 0
@@ -431,8 +433,9 @@ class SceneGeometry:
                 s = self._sample_mesh(e, k, u1, u2)
             out = s if out is None else _select_sample(index == k, s, out)
         for k, light in enumerate(self.points):
-            s = LightSample(vec3(light.position), Array3f(0.0), vec3(light.intensity), Float(1.0 / n_lights),
-                            UInt32(POINT_LIGHT))
+            axis, *cone = light.cone()     # the axis rides in n
+            s = LightSample(vec3(light.position), vec3(axis), vec3(light.intensity), Float(1.0 / n_lights),
+                            UInt32(POINT_LIGHT), tuple(Float(x) for x in cone) if self.spots else None)
             out = s if out is None else _select_sample(index == len(self.emitters) + k, s, out)
         if self.has_environment:
             d = self.envmap.sample(u1, u2) if self.envmap is not None else square_to_uniform_sphere(u1, u2)
@@ -489,8 +492,12 @@ class SceneGeometry:
 
 
 def _select_sample(mask: Bool, a: LightSample, b: LightSample) -> LightSample:
+    cone = None
+    if a.cone is not None or b.cone is not None:
+        a_cone, b_cone = (s.cone if s.cone is not None else (Float(-2.0),) * 2 + (Float(0.0),) * 2 for s in (a, b))
+        cone = tuple(dr.select(mask, x, y) for x, y in zip(a_cone, b_cone))
     return LightSample(dr.select(mask, a.y, b.y), dr.select(mask, a.n, b.n), dr.select(mask, a.radiance, b.radiance),
-                       dr.select(mask, a.pdf_area, b.pdf_area), dr.select(mask, a.prim, b.prim))
+                       dr.select(mask, a.pdf_area, b.pdf_area), dr.select(mask, a.prim, b.prim), cone)
 
 
 class _EnvmapKernel:

@@ -35,7 +35,7 @@ SUPPORTED = {
     "sampler": ("independent",),
     "shape": ("rectangle", "disk", "sphere", "cylinder", "obj", "ply", "serialized"),
     "bsdf": ("diffuse", "twosided", "conductor", "dielectric", "plastic"),
-    "emitter": ("area", "constant", "envmap", "point"),
+    "emitter": ("area", "constant", "envmap", "point", "spot"),
     "texture": ("checkerboard",),
 }
 PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf", "emitter", "texture",
@@ -78,6 +78,7 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("emitter", "area"): ("radiance", "sampling_weight"),
     ("texture", "checkerboard"): ("color0", "color1", "to_uv"),
     ("emitter", "point"): ("position", "to_world", "intensity", "sampling_weight"),
+    ("emitter", "spot"): ("to_world", "intensity", "cutoff_angle", "beam_width", "texture", "sampling_weight"),
     ("emitter", "constant"): ("radiance", "sampling_weight", "to_world"),
     ("emitter", "envmap"): ("filename", "bitmap", "scale", "to_world", "mis_compensation", "sampling_weight"),
 }
@@ -522,7 +523,7 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
             ctx.attempt(_declared, ctx, node)        # an area light declared for a shape's <ref>
         elif node.tag == "emitter" and _emitter_type(node) in ("constant", "envmap"):
             environments.append(node)
-        elif node.tag == "emitter" and _emitter_type(node) == "point":
+        elif node.tag == "emitter" and _emitter_type(node) in ("point", "spot"):
             points.append(node)
         elif node.tag in PLUGIN_TAGS:
             if ctx.attempt(_check_type, ctx, node) is not None:
@@ -552,7 +553,7 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
         path=ctx.path,
     )
     for node in points:
-        light = ctx.attempt(_point_light, ctx, node)
+        light = ctx.attempt(_spot_light if _emitter_type(node) == "spot" else _point_light, ctx, node)
         if light is not None:
             scene.point_lights.append(light)
     if environments and _emitter_type(environments[0]) == "envmap":
@@ -818,6 +819,27 @@ def _point_light(ctx: _Context, node: Node) -> PointLight:
     if np.any(intensity < 0):
         raise ctx.error(node, f"intensity must be non-negative, got {_rgb(intensity)}")
     return PointLight(np.asarray(position, float), _rgb(intensity), node.attrib.get("id", f"point@{node.line}"))
+
+
+def _spot_light(ctx: _Context, node: Node) -> PointLight:
+    """Mitsuba's `spot` emitter: at to_world's origin, along its +z, with a linear falloff in angle."""
+    props = _Props(ctx, node, _check_type(ctx, node), emitter=True)
+    to_world = props.get("to_world", np.eye(4), ("transform",))
+    intensity = props.colour("intensity", 1.0)
+    cutoff = float(props.get("cutoff_angle", 20.0, ("float", "integer")))
+    beam = float(props.get("beam_width", cutoff * 3.0 / 4.0, ("float", "integer")))
+    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
+    props.finish()
+    linear = to_world[:3, :3]
+    if not np.allclose(linear.T @ linear, np.eye(3), atol=1e-5):
+        raise ctx.error(node, "a spot light's to_world must be a rotation and a translation (no scale or shear)")
+    if not 0 < beam < cutoff < 180:
+        raise ctx.error(node, f"need 0 < beam_width < cutoff_angle < 180 degrees, got {beam} and {cutoff}")
+    if np.any(intensity < 0):
+        raise ctx.error(node, f"intensity must be non-negative, got {_rgb(intensity)}")
+    axis = linear[:, 2] / np.linalg.norm(linear[:, 2])
+    return PointLight(to_world[:3, 3].copy(), _rgb(intensity), node.attrib.get("id", f"spot@{node.line}"),
+                      spot=(axis, cutoff, beam))
 
 
 def _envmap(ctx: _Context, node: Node) -> EnvironmentMap:

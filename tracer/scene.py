@@ -139,11 +139,23 @@ class Mesh:
 
 @dataclass(eq=False)
 class PointLight:
-    """Mitsuba's `point` emitter: `intensity` (radiant intensity) from `position` in every direction."""
+    """Mitsuba's `point` emitter: `intensity` (radiant intensity) from `position` in every direction; with
+    `spot` = (axis, cutoff_angle, beam_width) in degrees, Mitsuba's `spot`: full intensity within beam_width
+    of the axis, falling linearly in angle to 0 at cutoff_angle."""
 
     position: np.ndarray
     intensity: tuple[float, float, float]
     name: str = ""
+    spot: tuple[np.ndarray, float, float] | None = None
+
+    def cone(self) -> tuple[tuple[float, float, float], float, float, float, float]:
+        """(axis, cos cutoff, cos beam width, cutoff in radians, 1 / transition width in radians); a point
+        light's cone admits every direction at full intensity."""
+        if self.spot is None:
+            return (0.0, 0.0, 0.0), -2.0, -2.0, 0.0, 0.0
+        axis, cutoff, beam = self.spot
+        c, b = np.radians(cutoff), np.radians(beam)
+        return tuple(float(x) for x in axis), float(np.cos(c)), float(np.cos(b)), float(c), float(1.0 / (c - b))
 
 
 @dataclass(eq=False)

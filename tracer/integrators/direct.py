@@ -53,6 +53,11 @@ def sample_direct(geo: SceneGeometry, surf: Surface, ns: Array3f, albedo: Array3
     lit = active & (cos_x > 0) & (cos_y > 0) & (dist2 > 0)
     occluded = geo.occluded(surf.p, w, dist, surf.prim, ls.prim, lit)   # traced only where it counts
     geometry_term = cos_x * cos_y / dist2
+    if geo.spots:            # a spot light's falloff in the direction of the shaded point (1 off spot lights)
+        cos_cutoff, cos_beam, cutoff, inv_width = ls.cone
+        cos_t = -dr.dot(ls.n, w)
+        falloff = dr.select(cos_t >= cos_beam, 1.0, (cutoff - dr.safe_acos(cos_t)) * inv_width)
+        geometry_term *= dr.select(cos_t > cos_cutoff, falloff, 0.0)
     value = diffuse_brdf(albedo) * ls.radiance * (geometry_term / ls.pdf_area)
     ok = lit & ~occluded
     pdf_light = ls.pdf_area * dist2 / dr.maximum(cos_y, 1e-30)
