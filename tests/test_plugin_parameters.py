@@ -63,7 +63,8 @@ VALUES = {
     "to_uv": '<transform name="to_uv"><scale value="2"/></transform>',
     "position": '<point name="position" x="1" y="2" z="3"/>', "p0": '<point name="p0" x="1" y="2" z="3"/>',
     "p1": '<point name="p1" x="1" y="2" z="3"/>', "cutoff_angle": '<float name="cutoff_angle" value="30"/>',
-    "beam_width": '<float name="beam_width" value="10"/>', "texture": '<texture type="checkerboard" name="texture"/>', "intensity": '<rgb name="intensity" value="2, 3, 4"/>',
+    "beam_width": '<float name="beam_width" value="10"/>', "direction": '<vector name="direction" x="1" y="-2" z="0"/>',
+    "irradiance": '<rgb name="irradiance" value="2, 3, 4"/>', "texture": '<texture type="checkerboard" name="texture"/>', "intensity": '<rgb name="intensity" value="2, 3, 4"/>',
 }
 HONOURED = "honoured"
 NO_EFFECT = "no effect on the image"
@@ -90,7 +91,7 @@ EXPECTED = {
     "emitter": {"radiance": HONOURED, "sampling_weight": NO_EFFECT, "to_world": NO_EFFECT,   # constant: uniform
                 "filename": HONOURED, "scale": HONOURED, "mis_compensation": NO_EFFECT, "bitmap": REFUSED,
                 "position": HONOURED, "intensity": HONOURED, "cutoff_angle": HONOURED, "beam_width": HONOURED,
-                "texture": REFUSED},
+                "texture": REFUSED, "direction": HONOURED, "irradiance": HONOURED},
 }
 SPECIAL = {   # (tag, kind, parameter) whose handling differs from the tag's other plugins
     ("shape", "cylinder", "silhouette_sampling_weight"): NO_EFFECT,
@@ -98,6 +99,7 @@ SPECIAL = {   # (tag, kind, parameter) whose handling differs from the tag's oth
     ("emitter", "envmap", "to_world"): HONOURED,
     ("emitter", "point", "to_world"): HONOURED,
     ("emitter", "spot", "to_world"): HONOURED,
+    ("emitter", "directional", "to_world"): HONOURED,
     ("shape", "sphere", "flip_normals"): REFUSED,
     ("bsdf", "dielectric", "specular_reflectance"): REFUSED,
 }
@@ -132,7 +134,9 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
     elif tag == "texture":
         body = (f'<shape type="rectangle"><bsdf type="diffuse"><texture type="{kind}" name="reflectance">{p}'
                 '</texture></bsdf></shape>')
-    elif kind in ("constant", "point", "spot"):
+    elif kind in ("constant", "point", "spot", "directional"):
+        if kind == "directional" and param == "to_world":   # a translation does not turn it
+            p = '<transform name="to_world"><rotate x="1" angle="30"/></transform>'
         body = f'<emitter type="{kind}">{p}</emitter>'
     elif kind == "envmap":
         file = "b.exr" if param == "filename" else "a.exr"
@@ -155,7 +159,8 @@ def _fingerprint(s) -> bytes:
                          [(x.center.tolist(), x.radius, x.bsdf) for x in s.spheres], s.environment,
                          [(c.to_world.tolist(), c.flipped) for c in s.cylinders],
                          None if s.envmap is None else (s.envmap.image.tolist(), s.envmap.to_world.tolist()),
-                         [(light.position.tolist(), light.intensity, light.cone()) for light in s.point_lights]))
+                         [(light.position.tolist(), light.intensity, light.cone()) for light in s.point_lights],
+                         [(light.direction.tolist(), light.irradiance) for light in s.directional_lights]))
 
 
 def _outcome(tmp_path, tag, kind, param) -> str:

@@ -221,7 +221,7 @@ REFUSED = [
      '</shape>', "specular_transmittance", "other than 1"),
     ('<shape type="rectangle"><bsdf type="diffuse">\n<texture type="bitmap" name="reflectance"/></bsdf>'
      '</shape>', "bitmap", "unsupported texture plugin 'bitmap'"),
-    ('<emitter type="directional">\n</emitter>', 'type="directional"', "unsupported emitter plugin 'directional'"),
+    ('<emitter type="projector">\n</emitter>', 'type="projector"', "unsupported emitter plugin 'projector'"),
 ]
 
 

@@ -19,6 +19,7 @@ from .scene import BSDF, Mesh, Rectangle, Scene, Sphere
 
 DIFFUSE, CONDUCTOR, DIELECTRIC, PLASTIC = 0, 1, 2, 3
 POINT_LIGHT = NO_PRIM - 1   # the `prim` of a light sample on a point light (NO_PRIM: on the environment)
+DIRECTIONAL_LIGHT = NO_PRIM - 2
 BVH_THRESHOLD = 56  # triangles above which a BVH beats the unrolled brute-force tests (measured: brute force wins at 48, the BVH at 64)
 _KIND_CODE = {"diffuse": DIFFUSE, "conductor": CONDUCTOR, "dielectric": DIELECTRIC, "plastic": PLASTIC}
 
@@ -81,9 +82,11 @@ class SceneGeometry:
         self.envmap = _EnvmapKernel(scene.envmap) if scene.envmap is not None else None
         self.has_environment = self.environment is not None or self.envmap is not None
         self.points = scene.point_lights
+        self.directionals = scene.directional_lights
         self.spots = any(light.spot is not None for light in self.points)
         # lights a shadow ray may be sent to, chosen uniformly: the area lights, point lights, the environment
-        self.n_lights = len(self.emitters) + len(self.points) + self.has_environment
+        self.n_lights = len(self.emitters) + len(self.points) + len(self.directionals) + self.has_environment
+        self.has_infinite_lights = self.has_environment or bool(self.directionals)   # shadow rays leave the scene
         self.has_lights = self.n_lights > 0
         self.smooth = any(m.normals is not None for m in scene.meshes)
         self.bvh = BVHKernel(self.tri_vertices, self.n_rects) if self.n_tris > BVH_THRESHOLD else None
@@ -198,8 +201,8 @@ class SceneGeometry:
         """Primitives that can block a shadow ray. A shadow ray joins two points of the scene, so a planar
         primitive with the whole scene on one side of its plane (a wall of a convex room) never lies
         strictly between its ends: such primitives are left out of the shadow-ray kernel. Shadow rays to an
-        environment leave the scene, so with one every primitive may block."""
-        if self.has_environment:
+        environment leave the scene, so with one (or a directional light) every primitive may block."""
+        if self.has_infinite_lights:
             return set(range(self.n_prims))
         points = [self.tri_vertices.reshape(-1, 3)]
         points += [r.center + a * e1 + b * e2 for r in self.rects for e1, e2 in [r.edges]
@@ -437,6 +440,10 @@ class SceneGeometry:
             s = LightSample(vec3(light.position), vec3(axis), vec3(light.intensity), Float(1.0 / n_lights),
                             UInt32(POINT_LIGHT), tuple(Float(x) for x in cone) if self.spots else None)
             out = s if out is None else _select_sample(index == len(self.emitters) + k, s, out)
+        for k, light in enumerate(self.directionals):   # y: the direction towards it; n: the one it shines along
+            s = LightSample(vec3(-light.direction), vec3(light.direction), vec3(light.irradiance),
+                            Float(1.0 / n_lights), UInt32(DIRECTIONAL_LIGHT))
+            out = s if out is None else _select_sample(index == len(self.emitters) + len(self.points) + k, s, out)
         if self.has_environment:
             d = self.envmap.sample(u1, u2) if self.envmap is not None else square_to_uniform_sphere(u1, u2)
             s = LightSample(d, -d, self.environment_radiance(d), Float(self.environment_pdf(d)), UInt32(NO_PRIM))

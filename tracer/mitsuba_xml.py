@@ -23,8 +23,8 @@ from .film import ReconstructionFilter
 from .ior import named_conductor, named_ior
 from .meshes import MeshError, read_obj, read_ply, vertex_normals
 from .envmap import EnvmapError, read_exr_rgb
-from .scene import (BSDF, Camera, Checkerboard, Cylinder, EnvironmentMap, Mesh, PointLight, Rectangle, Scene,
-                    SceneError, Sphere)
+from .scene import (BSDF, Camera, Checkerboard, Cylinder, DirectionalLight, EnvironmentMap, Mesh, PointLight,
+                    Rectangle, Scene, SceneError, Sphere)
 from .serialized import read_serialized
 
 SUPPORTED = {
@@ -35,7 +35,7 @@ SUPPORTED = {
     "sampler": ("independent",),
     "shape": ("rectangle", "disk", "sphere", "cylinder", "obj", "ply", "serialized"),
     "bsdf": ("diffuse", "twosided", "conductor", "dielectric", "plastic"),
-    "emitter": ("area", "constant", "envmap", "point", "spot"),
+    "emitter": ("area", "constant", "envmap", "point", "spot", "directional"),
     "texture": ("checkerboard",),
 }
 PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf", "emitter", "texture",
@@ -79,6 +79,7 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("texture", "checkerboard"): ("color0", "color1", "to_uv"),
     ("emitter", "point"): ("position", "to_world", "intensity", "sampling_weight"),
     ("emitter", "spot"): ("to_world", "intensity", "cutoff_angle", "beam_width", "texture", "sampling_weight"),
+    ("emitter", "directional"): ("direction", "to_world", "irradiance", "sampling_weight"),
     ("emitter", "constant"): ("radiance", "sampling_weight", "to_world"),
     ("emitter", "envmap"): ("filename", "bitmap", "scale", "to_world", "mis_compensation", "sampling_weight"),
 }
@@ -509,7 +510,7 @@ def _check_type(ctx: _Context, node: Node) -> str:
 
 
 def _build_scene(ctx: _Context, root: Node) -> Scene | None:
-    integrators, sensors, shapes, environments, points = [], [], [], [], []
+    integrators, sensors, shapes, environments, points, directionals = [], [], [], [], [], []
     for node in root.children:
         if node.tag == "integrator":
             integrators.append(node)
@@ -525,6 +526,8 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
             environments.append(node)
         elif node.tag == "emitter" and _emitter_type(node) in ("point", "spot"):
             points.append(node)
+        elif node.tag == "emitter" and _emitter_type(node) == "directional":
+            directionals.append(node)
         elif node.tag in PLUGIN_TAGS:
             if ctx.attempt(_check_type, ctx, node) is not None:
                 ctx.errors.append(str(ctx.error(node, f"a top-level <{node.tag}> is unsupported; supported at the "
@@ -556,6 +559,10 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
         light = ctx.attempt(_spot_light if _emitter_type(node) == "spot" else _point_light, ctx, node)
         if light is not None:
             scene.point_lights.append(light)
+    for node in directionals:
+        light = ctx.attempt(_directional_light, ctx, node)
+        if light is not None:
+            scene.directional_lights.append(light)
     if environments and _emitter_type(environments[0]) == "envmap":
         scene.envmap = ctx.attempt(_envmap, ctx, environments[0])
     elif environments:
@@ -840,6 +847,28 @@ def _spot_light(ctx: _Context, node: Node) -> PointLight:
     axis = linear[:, 2] / np.linalg.norm(linear[:, 2])
     return PointLight(to_world[:3, 3].copy(), _rgb(intensity), node.attrib.get("id", f"spot@{node.line}"),
                       spot=(axis, cutoff, beam))
+
+
+def _directional_light(ctx: _Context, node: Node) -> DirectionalLight:
+    """Mitsuba's `directional` emitter: along `direction`, or along to_world's +z."""
+    props = _Props(ctx, node, _check_type(ctx, node), emitter=True)
+    if props.has("direction") and props.has("to_world"):
+        raise ctx.error(node, "give either direction or to_world, not both (as in Mitsuba)")
+    if props.has("direction"):
+        d = props.get("direction", tags=("vector",))
+    else:
+        linear = props.get("to_world", np.eye(4), ("transform",))[:3, :3]
+        if not np.allclose(linear.T @ linear, np.eye(3), atol=1e-5):
+            raise ctx.error(node, "a directional light's to_world must be a rotation (no scale or shear)")
+        d = linear[:, 2]
+    irradiance = props.colour("irradiance", 1.0)
+    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
+    props.finish()
+    if not np.any(d):
+        raise ctx.error(node, "the direction is zero")
+    if np.any(irradiance < 0):
+        raise ctx.error(node, f"irradiance must be non-negative, got {_rgb(irradiance)}")
+    return DirectionalLight(d / np.linalg.norm(d), _rgb(irradiance), node.attrib.get("id", f"directional@{node.line}"))
 
 
 def _envmap(ctx: _Context, node: Node) -> EnvironmentMap:

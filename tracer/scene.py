@@ -159,6 +159,16 @@ class PointLight:
 
 
 @dataclass(eq=False)
+class DirectionalLight:
+    """Mitsuba's `directional` emitter: `irradiance` arriving along the unit vector `direction` (the way the
+    light travels) from infinitely far away."""
+
+    direction: np.ndarray
+    irradiance: tuple[float, float, float]
+    name: str = ""
+
+
+@dataclass(eq=False)
 class EnvironmentMap:
     """Mitsuba's `envmap`: a latitude-longitude image of radiance (already times `scale`) around the scene,
     turned by `to_world` (tracer/envmap.py states the mapping)."""
@@ -212,6 +222,7 @@ class Scene:
     environment: tuple[float, float, float] | None = None   # a `constant` emitter's radiance, from all directions
     envmap: EnvironmentMap | None = None                     # or an `envmap` emitter
     point_lights: list[PointLight] = field(default_factory=list)
+    directional_lights: list[DirectionalLight] = field(default_factory=list)
     path: Path | None = None
 
     @property
