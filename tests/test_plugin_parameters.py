@@ -64,7 +64,10 @@ VALUES = {
     "position": '<point name="position" x="1" y="2" z="3"/>', "p0": '<point name="p0" x="1" y="2" z="3"/>',
     "p1": '<point name="p1" x="1" y="2" z="3"/>', "cutoff_angle": '<float name="cutoff_angle" value="30"/>',
     "beam_width": '<float name="beam_width" value="10"/>', "direction": '<vector name="direction" x="1" y="-2" z="0"/>',
-    "irradiance": '<rgb name="irradiance" value="2, 3, 4"/>', "texture": '<texture type="checkerboard" name="texture"/>', "intensity": '<rgb name="intensity" value="2, 3, 4"/>',
+    "irradiance": '<rgb name="irradiance" value="2, 3, 4"/>', "data": '<ref name="data" id="nothing"/>',
+    "raw": '<boolean name="raw" value="true"/>', "filter_type": '<string name="filter_type" value="nearest"/>',
+    "wrap_mode": '<string name="wrap_mode" value="clamp"/>', "format": '<string name="format" value="fp16"/>',
+    "accel": '<boolean name="accel" value="false"/>', "texture": '<texture type="checkerboard" name="texture"/>', "intensity": '<rgb name="intensity" value="2, 3, 4"/>',
 }
 HONOURED = "honoured"
 NO_EFFECT = "no effect on the image"
@@ -87,7 +90,9 @@ EXPECTED = {
     "bsdf": {"reflectance": HONOURED, "allow_transmission": REFUSED, "material": HONOURED, "eta": HONOURED,
              "k": HONOURED, "specular_reflectance": HONOURED, "specular_transmittance": REFUSED, "int_ior": HONOURED,
              "ext_ior": HONOURED, "nonlinear": HONOURED, "diffuse_reflectance": HONOURED},
-    "texture": {"color0": HONOURED, "color1": HONOURED, "to_uv": HONOURED},
+    "texture": {"color0": HONOURED, "color1": HONOURED, "to_uv": HONOURED, "filename": HONOURED, "bitmap": REFUSED,
+                "data": REFUSED, "raw": HONOURED, "filter_type": HONOURED, "wrap_mode": HONOURED, "format": REFUSED,
+                "accel": NO_EFFECT},
     "emitter": {"radiance": HONOURED, "sampling_weight": NO_EFFECT, "to_world": NO_EFFECT,   # constant: uniform
                 "filename": HONOURED, "scale": HONOURED, "mis_compensation": NO_EFFECT, "bitmap": REFUSED,
                 "position": HONOURED, "intensity": HONOURED, "cutoff_angle": HONOURED, "beam_width": HONOURED,
@@ -132,6 +137,9 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
         inner = '<bsdf type="diffuse"/>' if kind == "twosided" else ""
         body = f'<shape type="rectangle"><bsdf type="{kind}">{inner}{p}</bsdf></shape>'
     elif tag == "texture":
+        if kind == "bitmap":
+            p += f'<string name="filename" value="{"b.png" if param == "filename" else "a.png"}"/>'
+            p = p.replace(VALUES["filename"], "") if param == "filename" else p
         body = (f'<shape type="rectangle"><bsdf type="diffuse"><texture type="{kind}" name="reflectance">{p}'
                 '</texture></bsdf></shape>')
     elif kind in ("constant", "point", "spot", "directional"):
@@ -171,6 +179,9 @@ def _outcome(tmp_path, tag, kind, param) -> str:
     parts = [serialized_mesh(VERTICES, FACES), serialized_mesh(VERTICES[::-1], FACES[:3])]
     write_serialized(tmp_path / "a.serialized", parts)
     write_serialized(tmp_path / "b.serialized", parts[::-1])
+    from PIL import Image
+    for name, seed in (("a.png", 1), ("b.png", 2)):
+        Image.fromarray(np.random.default_rng(seed).integers(0, 256, (4, 8, 3), dtype=np.uint8)).save(tmp_path / name)
     for name, value in (("a.exr", 1.0), ("b.exr", 2.0)):
         OpenEXR.File({"type": OpenEXR.scanlineimage}, {"RGB": np.full((4, 8, 3), value, np.float32)}).write(
             str(tmp_path / name))
@@ -199,9 +210,12 @@ def test_every_parameter_has_an_expectation():
     assert set(VALUES) >= {p for _, _, p in CASES}
 
 
+OBJECTS = ("bitmap", "srf", "texture", "data")   # parameters that take objects: not given in the Mitsuba check
+
+
 def _mitsuba_xml(tmp_path, tag: str, kind: str, param: str) -> str:
     """The plugin alone, given `param`, as Mitsuba reads it (a file where the plugin needs one)."""
-    files = {"obj": "a.obj", "ply": "a.ply", "serialized": "a.serialized", "envmap": "a.exr"}
+    files = {"obj": "a.obj", "ply": "a.ply", "serialized": "a.serialized", "envmap": "a.exr", "bitmap": "a.png"}
     extra = f'<string name="filename" value="{tmp_path / files[kind]}"/>' if kind in files else ""
     value = extra if param == "filename" else VALUES[param] + extra
     value += {"twosided": '<bsdf type="diffuse"/>'}.get(kind, "")
@@ -214,11 +228,11 @@ def _mitsuba_xml(tmp_path, tag: str, kind: str, param: str) -> str:
     return f'<{tag} version="3.0.0" type="{kind}">{value}</{tag}>'
 
 
-@pytest.mark.parametrize("tag, kind, param", [c for c in CASES if c[2] not in ("bitmap", "srf", "texture")],
-                         ids=[f"{t}-{k}-{p}" for t, k, p in CASES if p not in ("bitmap", "srf", "texture")])
+@pytest.mark.parametrize("tag, kind, param", [c for c in CASES if c[2] not in OBJECTS],
+                         ids=[f"{t}-{k}-{p}" for t, k, p in CASES if p not in OBJECTS])
 def test_mitsuba_reads_every_listed_parameter(tmp_path, tag, kind, param):
     """The table is Mitsuba's: none of its parameters is one Mitsuba 3.9.1 calls unreferenced (a value it
-    refuses for another reason still shows the parameter is read). `bitmap`, `srf`, `texture` take objects."""
+    refuses for another reason still shows the parameter is read). OBJECTS take objects."""
     from .test_xml_features import mitsuba
     mi = mitsuba()
     (tmp_path / "a.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
@@ -226,6 +240,8 @@ def test_mitsuba_reads_every_listed_parameter(tmp_path, tag, kind, param):
     write_serialized(tmp_path / "a.serialized", [serialized_mesh(VERTICES, FACES), serialized_mesh(VERTICES, FACES)])
     OpenEXR.File({"type": OpenEXR.scanlineimage}, {"RGB": np.ones((4, 8, 3), np.float32)}).write(
         str(tmp_path / "a.exr"))
+    from PIL import Image
+    Image.fromarray(np.zeros((4, 8, 3), np.uint8)).save(tmp_path / "a.png")
     try:
         mi.load_string(_mitsuba_xml(tmp_path, tag, kind, param))
     except Exception as e:

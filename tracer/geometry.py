@@ -15,11 +15,12 @@ from .bsdf import fresnel_conductor, fresnel_diffuse_reflectance
 from .bvh import BVHKernel
 from .jit import INF, NO_PRIM, Array3f, Bool, Float, UInt32, vec3
 from .sampling import square_to_uniform_disk_concentric, square_to_uniform_sphere, square_to_uniform_triangle
-from .scene import BSDF, Mesh, Rectangle, Scene, Sphere
+from .scene import BSDF, Bitmap, Checkerboard, Mesh, Rectangle, Scene, Sphere
 
 DIFFUSE, CONDUCTOR, DIELECTRIC, PLASTIC = 0, 1, 2, 3
 POINT_LIGHT = NO_PRIM - 1   # the `prim` of a light sample on a point light (NO_PRIM: on the environment)
 DIRECTIONAL_LIGHT = NO_PRIM - 2
+TEXTURE_FIELDS = 18         # per material: kind, two colours, to_uv's two rows, a bitmap's offset, size and modes
 BVH_THRESHOLD = 56  # triangles above which a BVH beats the unrolled brute-force tests (measured: brute force wins at 48, the BVH at 64)
 _KIND_CODE = {"diffuse": DIFFUSE, "conductor": CONDUCTOR, "dielectric": DIELECTRIC, "plastic": PLASTIC}
 
@@ -172,12 +173,21 @@ class SceneGeometry:
             uvs[base:base + n] = m.uvs[m.faces] if m.uvs is not None else [[0, 0], [1, 0], [0, 1]]
             base += n
         self.corner_uvs = Float(uvs.ravel())
-        tex = np.zeros((len(materials), 1 + 3 + 3 + 6))
+        tex = np.zeros((len(materials), TEXTURE_FIELDS))
+        texels = [np.zeros(3, np.float32)]
+        offset = 1
         for i, b in enumerate(materials):
-            if b.texture is not None:
-                t = b.texture
-                tex[i] = [1.0, *t.color0, *t.color1, *np.asarray(t.to_uv)[:2].ravel()]
+            t = b.texture
+            if isinstance(t, Checkerboard):
+                tex[i, :13] = [1.0, *t.color0, *t.color1, *np.asarray(t.to_uv)[:2].ravel()]
+            elif isinstance(t, Bitmap):
+                h, w = t.image.shape[:2]
+                tex[i] = [2.0, 0, 0, 0, 0, 0, 0, *np.asarray(t.to_uv)[:2].ravel(), offset, w, h, t.bilinear, t.repeat]
+                texels.append(t.image.ravel())
+                offset += h * w
         self.mat_texture = Float(tex.ravel())
+        self.texels = Float(np.concatenate(texels))
+        self.bitmaps = any(isinstance(b.texture, Bitmap) for b in materials)
 
     def _emitter_prim_ranges(self) -> list[tuple[int, int]]:
         return [self.prim_range(e) for e in self.emitters]
@@ -361,13 +371,35 @@ class SceneGeometry:
         rho = self.albedo(surf.material, active)
         if not self.textured:
             return rho
-        t = [dr.gather(Float, self.mat_texture, surf.material * 13 + k, active) for k in range(13)]
+        t = [dr.gather(Float, self.mat_texture, surf.material * TEXTURE_FIELDS + k, active)
+             for k in range(TEXTURE_FIELDS)]
         u, v = surf.uv
         tu = dr.fma(t[7], u, dr.fma(t[8], v, t[9]))
         tv = dr.fma(t[10], u, dr.fma(t[11], v, t[12]))
         first = (tu - dr.floor(tu) > 0.5) == (tv - dr.floor(tv) > 0.5)
-        checker = dr.select(first, Array3f(t[1], t[2], t[3]), Array3f(t[4], t[5], t[6]))
-        return dr.select(t[0] > 0, checker, rho)
+        texture = dr.select(first, Array3f(t[1], t[2], t[3]), Array3f(t[4], t[5], t[6]))
+        if self.bitmaps:
+            texture = dr.select(t[0] > 1.5, self._bitmap(t, tu, tv, active & (t[0] > 1.5)), texture)
+        return dr.select(t[0] > 0, texture, rho)
+
+    def _bitmap(self, t: list[Float], u: Float, v: Float, active: Bool) -> Array3f:
+        """A bitmap texture's texels around (u, v), filtered and wrapped (tracer/bitmap.py)."""
+        offset, w, h, bilinear, repeat = t[13], t[14], t[15], t[16] > 0, t[17] > 0
+
+        def wrap(i: Float, n: Float) -> UInt32:
+            return UInt32(dr.select(repeat, i - n * dr.floor(i / n), dr.clip(i, 0.0, n - 1.0)))
+
+        def texel(i: Float, j: Float) -> Array3f:
+            index = UInt32(offset) + wrap(j, h) * UInt32(w) + wrap(i, w)
+            return dr.gather(Array3f, self.texels, index, active)
+
+        x = dr.select(bilinear, dr.fma(u, w, -0.5), u * w)
+        y = dr.select(bilinear, dr.fma(v, h, -0.5), v * h)
+        x0, y0 = dr.floor(x), dr.floor(y)
+        wx, wy = dr.select(bilinear, x - x0, 0.0), dr.select(bilinear, y - y0, 0.0)
+        top = texel(x0, y0) * (1.0 - wx) + texel(x0 + 1.0, y0) * wx
+        bottom = texel(x0, y0 + 1.0) * (1.0 - wx) + texel(x0 + 1.0, y0 + 1.0) * wx
+        return top * (1.0 - wy) + bottom * wy
 
     def kind(self, material: UInt32, active: Bool) -> UInt32:
         return dr.gather(UInt32, self.mat_kind, material, active)

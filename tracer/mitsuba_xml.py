@@ -23,7 +23,8 @@ from .film import ReconstructionFilter
 from .ior import named_conductor, named_ior
 from .meshes import MeshError, read_obj, read_ply, vertex_normals
 from .envmap import EnvmapError, read_exr_rgb
-from .scene import (BSDF, Camera, Checkerboard, Cylinder, DirectionalLight, EnvironmentMap, Mesh, PointLight,
+from .bitmap import BitmapError, read_bitmap
+from .scene import (BSDF, Bitmap, Camera, Checkerboard, Cylinder, DirectionalLight, EnvironmentMap, Mesh, PointLight,
                     Rectangle, Scene, SceneError, Sphere)
 from .serialized import read_serialized
 
@@ -36,7 +37,7 @@ SUPPORTED = {
     "shape": ("rectangle", "disk", "sphere", "cylinder", "obj", "ply", "serialized"),
     "bsdf": ("diffuse", "twosided", "conductor", "dielectric", "plastic"),
     "emitter": ("area", "constant", "envmap", "point", "spot", "directional"),
-    "texture": ("checkerboard",),
+    "texture": ("checkerboard", "bitmap"),
 }
 PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf", "emitter", "texture",
                "medium", "phase", "volume", "spectrum")
@@ -77,6 +78,7 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("bsdf", "plastic"): ("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "nonlinear"),
     ("emitter", "area"): ("radiance", "sampling_weight"),
     ("texture", "checkerboard"): ("color0", "color1", "to_uv"),
+    ("texture", "bitmap"): ("filename", "bitmap", "data", "raw", "filter_type", "wrap_mode", "to_uv", "format", "accel"),
     ("emitter", "point"): ("position", "to_world", "intensity", "sampling_weight"),
     ("emitter", "spot"): ("to_world", "intensity", "cutoff_angle", "beam_width", "texture", "sampling_weight"),
     ("emitter", "directional"): ("direction", "to_world", "irradiance", "sampling_weight"),
@@ -349,7 +351,7 @@ class _Props:
             node = _resolve_ref(self.ctx, refs[0]) if refs[0].tag == "ref" else refs[0]
             if textured and node.tag == "texture":
                 return self.ctx.built_once(node, lambda n: _texture(self.ctx, n))
-            where = "supported: <rgb>, <spectrum>, <float>" + (", a checkerboard <texture>" if textured else "")
+            where = "supported: <rgb>, <spectrum>, <float>" + (", a checkerboard or bitmap <texture>" if textured else "")
             raise self.ctx.error(refs[0], f"'{name}' given by a <{node.tag}>{_type_attr(node)}: unsupported; {where}")
         child = self.values.get(name)
         if child is not None and child.tag == "spectrum" and unbounded:
@@ -714,7 +716,7 @@ def _bsdf(ctx: _Context, node: Node) -> BSDF:
     if kind == "diffuse":
         rho = props.colour("reflectance", 0.5, textured=True)
         props.finish()
-        if isinstance(rho, Checkerboard):
+        if not isinstance(rho, np.ndarray):
             return BSDF("diffuse", (0.0, 0.0, 0.0), texture=rho)
         if np.any(rho < 0) or np.any(rho > 1):
             raise ctx.error(node, f"diffuse reflectance must lie in [0, 1], got {tuple(float(x) for x in rho)}")
@@ -737,16 +739,19 @@ def _bsdf(ctx: _Context, node: Node) -> BSDF:
         return BSDF("conductor", _rgb(spec), eta=_rgb(eta), k=_rgb(k))
     if kind == "plastic":
         ior = {k: _ior(ctx, props, k, d) for k, d in (("int_ior", "polypropylene"), ("ext_ior", "air"))}
-        rho, spec = props.colour("diffuse_reflectance", 0.5), props.colour("specular_reflectance", 1.0)
+        rho, spec = props.colour("diffuse_reflectance", 0.5, textured=True), props.colour("specular_reflectance", 1.0)
         nonlinear = props.get("nonlinear", False, ("boolean",))
         props.finish()
+        texture = None if isinstance(rho, np.ndarray) else rho
+        if texture is not None:     # its mean steers only which layer is sampled, not the estimate
+            rho = np.full(3, 0.5)
         for name, value in (("diffuse_reflectance", rho), ("specular_reflectance", spec)):
             if np.any(value < 0) or np.any(value > 1):
                 raise ctx.error(node, f"{name} must lie in [0, 1], got {_rgb(value)}")
         if min(ior.values()) <= 0:
             raise ctx.error(node, "indices of refraction must be positive")
         return BSDF("plastic", _rgb(rho), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"], specular_reflectance=_rgb(spec),
-                    nonlinear=bool(nonlinear))
+                    nonlinear=bool(nonlinear), texture=texture)
     ior = {k: _ior(ctx, props, k, d) for k, d in (("int_ior", "bk7"), ("ext_ior", "air"))}
     for name in ("specular_reflectance", "specular_transmittance"):
         if np.any(props.colour(name, 1.0) != 1.0):
@@ -757,18 +762,48 @@ def _bsdf(ctx: _Context, node: Node) -> BSDF:
     return BSDF("dielectric", (1.0, 1.0, 1.0), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"])
 
 
-def _texture(ctx: _Context, node: Node) -> Checkerboard:
+def _texture(ctx: _Context, node: Node) -> Checkerboard | Bitmap:
     kind = _check_type(ctx, node)
     props = _Props(ctx, node, kind)
+    if kind == "bitmap":
+        return _bitmap(ctx, node, props)
     colours = [props.colour(name, d) for name, d in (("color0", 0.4), ("color1", 0.2))]
     m = props.get("to_uv", np.eye(4), ("transform",))
     props.finish()
     for name, c in zip(("color0", "color1"), colours):
         if np.any(c < 0) or np.any(c > 1):
             raise ctx.error(node, f"{name} must lie in [0, 1], got {_rgb(c)}")
-    # a 4x4 transform acts on (u, v) through its x, y rows and columns and its translation (Mitsuba's extract)
-    to_uv = m[np.ix_([0, 1, 3], [0, 1, 3])]
-    return Checkerboard(_rgb(colours[0]), _rgb(colours[1]), tuple(tuple(float(x) for x in row) for row in to_uv))
+    return Checkerboard(_rgb(colours[0]), _rgb(colours[1]), _to_uv(m))
+
+
+def _to_uv(m: np.ndarray) -> tuple[tuple[float, float, float], ...]:
+    """A 4x4 transform acts on (u, v) through its x, y rows and columns and its translation (Mitsuba's
+    conversion of a 4x4 to a 3x3 transform)."""
+    return tuple(tuple(float(x) for x in row) for row in m[np.ix_([0, 1, 3], [0, 1, 3])])
+
+
+def _bitmap(ctx: _Context, node: Node, props: _Props) -> Bitmap:
+    filename = props.get("filename", None, ("string",))
+    raw = props.get("raw", False, ("boolean",))
+    choices = {"filter_type": ("bilinear", "nearest"), "wrap_mode": ("repeat", "clamp"), "format": ("auto",)}
+    modes = {}
+    for name, accepted in choices.items():
+        modes[name] = props.get(name, accepted[0], ("string",)).lower()
+        if modes[name] not in accepted:
+            raise ctx.error(props.values[name], f"{name} '{modes[name]}' unsupported; supported: {', '.join(accepted)}")
+    m = props.get("to_uv", np.eye(4), ("transform",))
+    props.ignore("accel")                  # how lookups are accelerated, not their values
+    props.finish()
+    if filename is None:
+        raise ctx.error(node, "bitmap needs a <string name=\"filename\">")
+    file = ctx.resolve(filename)
+    if not file.is_file():
+        raise ctx.error(node, f"image '{filename}' not found (looked in {', '.join(map(str, ctx.resolver))})")
+    try:
+        image = read_bitmap(file, raw)
+    except BitmapError as e:
+        raise ctx.error(node, str(e)) from None
+    return Bitmap(image, _to_uv(m), modes["filter_type"] == "bilinear", modes["wrap_mode"] == "repeat")
 
 
 def _rgb(value: np.ndarray) -> tuple[float, float, float]:

@@ -28,6 +28,16 @@ class Checkerboard:
     to_uv: tuple[tuple[float, float, float], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 
+@dataclass(frozen=True, eq=False)
+class Bitmap:
+    """Mitsuba's `bitmap` texture (tracer/bitmap.py): a linear RGB image looked up at to_uv (u, v)."""
+
+    image: np.ndarray                      # (H, W, 3) float32
+    to_uv: tuple[tuple[float, float, float], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    bilinear: bool = True
+    repeat: bool = True                    # else clamp
+
+
 @dataclass(frozen=True)
 class BSDF:
     """`diffuse` (Lambertian, one-sided unless `twosided`), `conductor` (smooth: `reflectance` times the exact
@@ -41,7 +51,7 @@ class BSDF:
     ext_ior: float = 1.000277
     eta: tuple[float, float, float] = (0.0, 0.0, 0.0)
     k: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    texture: Checkerboard | None = None     # a diffuse reflectance given by a texture (then not `reflectance`)
+    texture: Checkerboard | Bitmap | None = None   # a diffuse reflectance given by a texture
     specular_reflectance: tuple[float, float, float] = (1.0, 1.0, 1.0)   # plastic's specular layer
     nonlinear: bool = False                                              # plastic's internal scattering model
 
@@ -239,7 +249,7 @@ class Scene:
         if estimator == "report" and any(b.kind == "plastic" for b in self.bsdfs):
             out.append(f"{self.path}: the report estimator does not render the 'plastic' bsdf; use --estimator path")
         if estimator == "report" and any(b.texture is not None for b in self.bsdfs):
-            out.append(f"{self.path}: the report estimator does not render the 'checkerboard' texture; "
+            out.append(f"{self.path}: the report estimator does not render textures (checkerboard, bitmap); "
                        "use --estimator path")
         return out
 
