@@ -19,11 +19,11 @@ from xml.parsers import expat
 import numpy as np
 
 from . import spectra, transform
+from .bitmap import BitmapError, read_bitmap
+from .envmap import EnvmapError, read_exr_rgb
 from .film import ReconstructionFilter
 from .ior import named_conductor, named_ior
 from .meshes import MeshError, read_obj, read_ply, vertex_normals
-from .envmap import EnvmapError, read_exr_rgb
-from .bitmap import BitmapError, read_bitmap
 from .scene import (BSDF, Bitmap, Camera, Checkerboard, Cylinder, DirectionalLight, EnvironmentMap, Mesh, PointLight,
                     Rectangle, Scene, SceneError, Sphere)
 from .serialized import read_serialized
@@ -76,9 +76,10 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("bsdf", "conductor"): ("material", "eta", "k", "specular_reflectance"),
     ("bsdf", "dielectric"): ("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"),
     ("bsdf", "plastic"): ("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "nonlinear"),
-    ("emitter", "area"): ("radiance", "sampling_weight"),
     ("texture", "checkerboard"): ("color0", "color1", "to_uv"),
-    ("texture", "bitmap"): ("filename", "bitmap", "data", "raw", "filter_type", "wrap_mode", "to_uv", "format", "accel"),
+    ("texture", "bitmap"): ("filename", "bitmap", "data", "raw", "filter_type", "wrap_mode", "to_uv", "format",
+                            "accel"),
+    ("emitter", "area"): ("radiance", "sampling_weight"),
     ("emitter", "point"): ("position", "to_world", "intensity", "sampling_weight"),
     ("emitter", "spot"): ("to_world", "intensity", "cutoff_angle", "beam_width", "texture", "sampling_weight"),
     ("emitter", "directional"): ("direction", "to_world", "irradiance", "sampling_weight"),
