@@ -14,7 +14,7 @@ from tracer.render import render
 from validation.stats import welch_test
 
 from .conftest import SCENES, mitsuba_passes
-from .test_xml_features import mitsuba
+from .test_xml_features import mi  # noqa: F401  (the fixture)
 from .test_xml_loader import write_scene
 
 ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
@@ -24,7 +24,7 @@ IMAGE = SCENES / "textures" / "tiles.png"
 
 
 @pytest.mark.parametrize("options", [{}, {"filter_type": "nearest"}, {"wrap_mode": "clamp"}, {"raw": True}])
-def test_lookup_is_mitsubas(tmp_path, options):
+def test_lookup_is_mitsubas(tmp_path, options, mi):
     props = "".join(f'<boolean name="{k}" value="true"/>' if v is True else f'<string name="{k}" value="{v}"/>'
                     for k, v in options.items())
     path = write_scene(tmp_path, f'<shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap" '
@@ -36,7 +36,6 @@ def test_lookup_is_mitsubas(tmp_path, options):
     material = geo.scene.bsdfs.index(geo.scene.rectangles[0].bsdf)
     t = [Float(np.full(len(uv), x, np.float32)) for x in np.asarray(geo.mat_texture.numpy()).reshape(-1, 18)[material]]
     ours = np.asarray(geo._bitmap(t, Float(uv[:, 0]), Float(uv[:, 1]), True).numpy()).T
-    mi = mitsuba()
     tex = mi.load_dict({"type": "bitmap", "filename": str(IMAGE), **options})
     ref = []
     for u, v in uv:

@@ -12,7 +12,7 @@ from tracer.render import render
 from validation.stats import welch_test
 
 from .conftest import SCENES, mitsuba_passes
-from .test_xml_features import mitsuba, scene_errors
+from .test_xml_features import mi, scene_errors  # noqa: F401  (mi: the fixture)
 from .test_xml_loader import write_scene
 
 ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
@@ -41,9 +41,8 @@ def test_fails_with_u_and_v_swapped(monkeypatch):
     assert not result.passed, result.summary()
 
 
-def test_to_uv_as_mitsuba():
+def test_to_uv_as_mitsuba(mi):
     scene = tracer.load_scene(SCENES / SCENE)
-    mi = mitsuba()
     params = mi.traverse(mi.load_file(str(SCENES / SCENE)))
     floor = next(r for r in scene.rectangles if r.name == "floor")
     assert np.allclose(floor.bsdf.texture.to_uv, np.array(params["tiles.to_uv"].matrix), atol=1e-6)

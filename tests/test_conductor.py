@@ -13,7 +13,7 @@ from tracer.render import render
 from validation.stats import welch_test
 
 from .conftest import SCENES, mitsuba_passes
-from .test_xml_features import mitsuba
+from .test_xml_features import mi  # noqa: F401  (the fixture)
 from .test_xml_loader import write_scene
 
 ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
@@ -21,29 +21,26 @@ PASSES, SIZE, SPP = 16, 32, 64
 REPORT = dict(spp=2, direct=4, indirect=4)
 
 
-def test_named_conductors_are_mitsubas():
-    mi = mitsuba()
+def test_named_conductors_are_mitsubas(mi):
     for name, (eta, k) in CONDUCTORS.items():
         params = mi.traverse(mi.load_dict({"type": "conductor", "material": name}))
         assert np.allclose(eta, np.ravel(params["eta.value"]), rtol=1e-6, atol=1e-7), name
         assert np.allclose(k, np.ravel(params["k.value"]), rtol=1e-6, atol=1e-7), name
 
 
-def test_spectral_eta_and_k_are_mitsubas(tmp_path):
+def test_spectral_eta_and_k_are_mitsubas(tmp_path, mi):
     eta, k = "400:1.6, 550:0.9, 700:0.25", "400:1.9, 550:2.6, 700:3.9"
     path = write_scene(tmp_path, f'<shape type="sphere"><bsdf type="conductor"><spectrum name="eta" value="{eta}"/>'
                                  f'<spectrum name="k" value="{k}"/></bsdf></shape>')
     ours = tracer.load_scene(path).spheres[0].bsdf
-    mi = mitsuba()
     params = mi.traverse(mi.load_string(f'<bsdf version="3.0.0" type="conductor"><spectrum name="eta" value="{eta}"/>'
                                         f'<spectrum name="k" value="{k}"/></bsdf>'))
     assert np.allclose(ours.eta, np.ravel(params["eta.value"]), rtol=2e-6)
     assert np.allclose(ours.k, np.ravel(params["k.value"]), rtol=2e-6)
 
 
-def test_fresnel_conductor_is_mitsubas():
+def test_fresnel_conductor_is_mitsubas(mi):
     import drjit as dr
-    mi = mitsuba()
     rng = np.random.default_rng(5)
     cos = np.concatenate([[1.0, 1e-4, 0.5], rng.uniform(0, 1, 40)]).astype(np.float32)
     eta = rng.uniform(0.05, 4, (len(cos), 3)).astype(np.float32)

@@ -13,7 +13,7 @@ from tracer.render import render
 from validation.stats import welch_test
 
 from .conftest import SCENES, mitsuba_passes
-from .test_xml_features import mitsuba, scene_errors
+from .test_xml_features import mi, scene_errors  # noqa: F401  (mi: the fixture)
 from .test_xml_loader import write_scene
 
 ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
@@ -35,8 +35,7 @@ def geo():
     return SceneGeometry(tracer.load_scene(SCENES / SCENE, width=4, height=4))
 
 
-def test_radiance_is_mitsubas(geo):
-    mi = mitsuba()
+def test_radiance_is_mitsubas(geo, mi):
     em = mi.load_dict({"type": "envmap", "filename": str(SCENES / "textures" / "sky.exr"), "scale": 1.5,
                        "to_world": mi.ScalarTransform4f().rotate([0, 1, 0], 70)})
     d = directions(500, 1)

@@ -11,7 +11,7 @@ from plyfile import PlyData, PlyElement
 from tracer import load_scene
 
 from .test_xml_loader import assert_located, line_of, write_scene
-from .test_xml_features import mitsuba, scene_errors
+from .test_xml_features import mi, scene_errors  # noqa: F401  (mi: the fixture)
 
 RNG = np.random.default_rng(3)
 VERTICES = RNG.normal(size=(6, 3))
@@ -53,8 +53,7 @@ def write_serialized(path: Path, meshes: list[bytes], version=4) -> Path:
     return path
 
 
-def mitsuba_mesh(props: dict) -> dict:
-    mi = mitsuba()
+def mitsuba_mesh(mi, props: dict) -> dict:
     params = mi.traverse(mi.load_dict(props))
     return {k: np.array(params[k]) for k in ("vertex_positions", "faces", "vertex_normals")}
 
@@ -71,20 +70,20 @@ def assert_same(mesh, ref):
 
 @pytest.mark.parametrize("text", [True, False])
 @pytest.mark.parametrize("normals", [True, False])
-def test_ply_as_mitsuba(tmp_path, text, normals):
+def test_ply_as_mitsuba(tmp_path, text, normals, mi):
     write_ply(tmp_path / "m.ply", text, normals)
     mesh = ours(tmp_path, '<shape type="ply"><string name="filename" value="m.ply"/></shape>')
-    assert_same(mesh, mitsuba_mesh({"type": "ply", "filename": str(tmp_path / "m.ply")}))
+    assert_same(mesh, mitsuba_mesh(mi, {"type": "ply", "filename": str(tmp_path / "m.ply")}))
 
 
 @pytest.mark.parametrize("version", [3, 4])
 @pytest.mark.parametrize("index", [0, 1])
-def test_serialized_as_mitsuba(tmp_path, version, index):
+def test_serialized_as_mitsuba(tmp_path, version, index, mi):
     parts = [serialized_mesh(VERTICES, FACES, None, version), serialized_mesh(VERTICES[::-1], FACES, NORMALS, version)]
     path = write_serialized(tmp_path / "m.serialized", parts, version)
     mesh = ours(tmp_path, f'<shape type="serialized"><string name="filename" value="m.serialized"/>'
                           f'<integer name="shape_index" value="{index}"/></shape>')
-    ref = mitsuba_mesh({"type": "serialized", "filename": str(path), "shape_index": index})
+    ref = mitsuba_mesh(mi, {"type": "serialized", "filename": str(path), "shape_index": index})
     assert_same(mesh, ref)
     if index == 1:       # the stored normals, normalised
         assert np.allclose(mesh.normals, NORMALS / np.linalg.norm(NORMALS, axis=1, keepdims=True), atol=1e-6)

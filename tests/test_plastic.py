@@ -13,7 +13,7 @@ from tracer.render import render
 from validation.stats import welch_test
 
 from .conftest import SCENES, mitsuba_passes
-from .test_xml_features import mitsuba
+from .test_xml_features import mi  # noqa: F401  (the fixture)
 
 ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
 PASSES, SIZE, SPP = 16, 32, 64
@@ -43,8 +43,7 @@ def test_fails_without_the_interface_transmission(monkeypatch):
 
 
 @pytest.mark.parametrize("eta", [1 / 1.49, 1.49, 0.8, 2.4, 1.0001])
-def test_diffuse_fresnel_reflectance_is_mitsubas(eta):
-    mi = mitsuba()
+def test_diffuse_fresnel_reflectance_is_mitsubas(eta, mi):
     # Mitsuba evaluates the fit in float32: equal to its rounding (the fit cancels near eta = 1)
     assert bsdf.fresnel_diffuse_reflectance(eta) == pytest.approx(mi.fresnel_diffuse_reflectance(eta), abs=5e-7)
 

@@ -12,6 +12,7 @@ from tracer import SceneError, load_scene
 from tracer.mitsuba_xml import MITSUBA_PARAMETERS
 
 from .test_mesh_formats import FACES, VERTICES, serialized_mesh, write_ply, write_serialized
+from .test_xml_features import mi  # noqa: F401  (the fixture)
 from .test_xml_loader import HEADER, write_scene
 
 # a non-default value for each parameter
@@ -230,11 +231,9 @@ def _mitsuba_xml(tmp_path, tag: str, kind: str, param: str) -> str:
 
 @pytest.mark.parametrize("tag, kind, param", [c for c in CASES if c[2] not in OBJECTS],
                          ids=[f"{t}-{k}-{p}" for t, k, p in CASES if p not in OBJECTS])
-def test_mitsuba_reads_every_listed_parameter(tmp_path, tag, kind, param):
+def test_mitsuba_reads_every_listed_parameter(tmp_path, tag, kind, param, mi):
     """The table is Mitsuba's: none of its parameters is one Mitsuba 3.9.1 calls unreferenced (a value it
     refuses for another reason still shows the parameter is read). OBJECTS take objects."""
-    from .test_xml_features import mitsuba
-    mi = mitsuba()
     (tmp_path / "a.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     write_ply(tmp_path / "a.ply", True)
     write_serialized(tmp_path / "a.serialized", [serialized_mesh(VERTICES, FACES), serialized_mesh(VERTICES, FACES)])

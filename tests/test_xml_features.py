@@ -14,10 +14,17 @@ from .test_xml_loader import HEADER, assert_located, line_of, write_scene
 TRI = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
 
 
-def mitsuba():
-    import mitsuba as mi
-    mi.set_variant("scalar_rgb")
-    return mi
+@pytest.fixture
+def mi():
+    """Mitsuba in its scalar RGB variant for the duration of a test (the variant the other tests use is
+    restored after it)."""
+    from validation.mitsuba_render import mitsuba
+
+    module = mitsuba()                    # the project's variant, set first so that it can be restored
+    previous = module.variant()
+    module.set_variant("scalar_rgb")
+    yield module
+    module.set_variant(previous)
 
 
 def scene_errors(path: Path, **overrides) -> list[str]:
@@ -50,7 +57,7 @@ def _include_tree(tmp_path: Path) -> Path:
     <include filename="include/part.xml"/>""", name="main.xml")
 
 
-def test_include_and_path_as_mitsuba(tmp_path):
+def test_include_and_path_as_mitsuba(tmp_path, mi):
     path = _include_tree(tmp_path)
     s = load_scene(path)
     (mesh,), (sphere,) = s.meshes, s.spheres
@@ -58,7 +65,6 @@ def test_include_and_path_as_mitsuba(tmp_path):
     assert mesh.vertices[:, 0].max() == 1.0
     assert sphere.radius == 2.0                                 # the first <default> wins, as in Mitsuba
     assert load_scene(path, size=3).spheres[0].radius == 3.0    # and -D beats both
-    mi = mitsuba()
     params = mi.traverse(mi.load_file(str(path)))
     assert np.allclose(params["tri.vertex_positions"], mesh.vertices.ravel())
 
@@ -108,7 +114,7 @@ PAIRS = "400:0.04, 500:0.3, 550:0.6, 600:0.2, 700:0.9"
 
 
 @pytest.mark.parametrize("value", [PAIRS, "360:1, 830:1", "0.3", "450:0.1, 460:0.9, 470:0.1"])
-def test_spectra_convert_as_mitsubas_rgb_variant(tmp_path, value):
+def test_spectra_convert_as_mitsubas_rgb_variant(tmp_path, value, mi):
     path = write_scene(tmp_path, f"""
     <shape type="rectangle">
         <bsdf type="diffuse"><spectrum name="reflectance" value="{value}"/></bsdf>
@@ -117,7 +123,6 @@ def test_spectra_convert_as_mitsubas_rgb_variant(tmp_path, value):
         <emitter type="area"><spectrum name="radiance" value="{value}"/></emitter>
     </shape>""")
     surface, light = load_scene(path).rectangles
-    mi = mitsuba()
     bsdf = mi.load_string(f'<bsdf version="3.0.0" type="diffuse"><spectrum name="reflectance" value="{value}"/></bsdf>')
     lamp = mi.load_string(f'<emitter version="3.0.0" type="area"><spectrum name="radiance" value="{value}"/></emitter>')
     assert np.allclose(surface.bsdf.reflectance, mi.traverse(bsdf)["reflectance.value"], rtol=2e-6, atol=1e-7)
@@ -150,8 +155,7 @@ def test_bad_spectrum_is_located(tmp_path, value, words):
 
 
 # ---- named indices of refraction ----------------------------------------------------------------------
-def test_named_iors_are_mitsubas():
-    mi = mitsuba()
+def test_named_iors_are_mitsubas(mi):
     for name, value in NAMED_IOR.items():
         eta = mi.traverse(mi.load_dict({"type": "dielectric", "int_ior": name, "ext_ior": "vacuum"}))["eta"]
         assert np.float32(value) == pytest.approx(eta, rel=1e-7), name
@@ -172,10 +176,9 @@ def test_named_ior_in_a_scene(tmp_path):
 # ---- camera: focal length and Mitsuba's default -------------------------------------------------------
 @pytest.mark.parametrize("lens", ['<string name="focal_length" value="35mm"/>', "",
                                   '<float name="fov" value="30"/><string name="fov_axis" value="diagonal"/>'])
-def test_field_of_view_as_mitsuba(tmp_path, lens):
+def test_field_of_view_as_mitsuba(tmp_path, lens, mi):
     header = HEADER.replace('<sensor type="perspective">', f'<sensor type="perspective">{lens}')
     cam = load_scene(write_scene(tmp_path, "", header=header)).camera
-    mi = mitsuba()
     sensor = mi.load_string(header.split("<scene", 1)[1].split(">", 1)[1].replace(
         '<sensor type="perspective">', '<sensor version="3.0.0" type="perspective">'))
     x_fov = mi.traverse(sensor)["x_fov"]
