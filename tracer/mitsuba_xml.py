@@ -353,7 +353,7 @@ class _Props:
             if textured and node.tag == "texture":
                 return self.ctx.built_once(node, lambda n: _texture(self.ctx, n))
             where = "supported: <rgb>, <spectrum>, <float>" + (", a checkerboard or bitmap <texture>" if textured else "")
-            raise self.ctx.error(refs[0], f"'{name}' given by a <{node.tag}>{_type_attr(node)}: unsupported; {where}")
+            raise self.ctx.error(refs[0], f"'{name}' given by a <{node.tag}{_type_attr(node)}>: unsupported; {where}")
         child = self.values.get(name)
         if child is not None and child.tag == "spectrum" and unbounded:
             self.read.add(name)
@@ -389,8 +389,10 @@ class _Props:
                 child, f"{message}; {self.node.tag} '{self.kind}' supported: {', '.join(honoured) or 'none'}")))
         for o in self.objects:
             if id(o) not in self.taken:
+                target = self.ctx.ids.get(o.attrib.get("id", ""), o) if o.tag == "ref" else o
+                what = f"<{target.tag}{_type_attr(target)}>" + (f" as '{o.attrib['name']}'" if "name" in o.attrib else "")
                 self.ctx.errors.append(str(self.ctx.error(
-                    o, f"unexpected <{o.tag}> inside <{self.node.tag} type=\"{self.kind}\">")))
+                    o, f"{what} inside <{self.node.tag} type=\"{self.kind}\"> is unsupported")))
 
 
 def _resolve_ref(ctx: _Context, node: Node) -> Node:
