@@ -193,7 +193,7 @@ def test_missing_scene_file(tmp_path):
 
 
 @pytest.mark.parametrize("body,snippet,words", [
-    ('<shape type="cylinder"/>', 'type="cylinder"', ["cylinder", "supported", "rectangle"]),
+    ('<shape type="bsplinecurve"/>', 'type="bsplinecurve"', ["bsplinecurve", "supported", "rectangle"]),
     ('<shape type="rectangle">\n        <bsdf type="roughplastic"/>\n    </shape>', 'type="roughplastic"',
      ["roughplastic", "supported", "diffuse"]),
     ('<shape type="rectangle">\n        <emitter type="spot"/>\n    </shape>', 'type="spot"', ["spot", "supported"]),

@@ -94,7 +94,7 @@ def _vertex(geo, rng, o, d, t_min, t_max, skip, bounce, albedo, normal):
     kind = geo.kind(surf.material, surf.valid)
     ns, lit = facing_normal(geo, surf, wi)
     diffuse = surf.valid & (kind == DIFFUSE) & lit
-    rho = dr.select(diffuse, geo.albedo(surf.material, diffuse), Array3f(0.0))
+    rho = dr.select(diffuse, geo.albedo_at(surf, diffuse), Array3f(0.0))
     light = Bool(False)
     if geo.emitters:
         le = geo.emitted(surf, wi)

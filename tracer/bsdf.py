@@ -1,4 +1,5 @@
-"""Surface scattering with Mitsuba's semantics: Lambertian diffuse, perfect mirror, smooth dielectric."""
+"""Surface scattering with Mitsuba's semantics: Lambertian diffuse, smooth conductor (exact Fresnel),
+smooth dielectric."""
 import drjit as dr
 
 from .jit import Array3f, Float
@@ -50,3 +51,42 @@ def dielectric_interface(d: Array3f, n: Array3f, int_ior: Float, ext_ior: Float)
     reflected = reflect(d, n_facing)
     refracted = refract(d, n_facing, cos_i, cos_t, ratio)
     return f, reflected, refracted, ratio * ratio
+
+
+def fresnel_conductor(cos_i: Float, eta: Array3f, k: Array3f) -> Array3f:
+    """Exact unpolarised Fresnel reflectance of a conductor of complex relative index eta + i k, per channel,
+    for light arriving at cos_i > 0 (the s and p terms of Moeller's "Optics", as Mitsuba evaluates them)."""
+    cos2 = cos_i * cos_i
+    sin2 = 1.0 - cos2
+    t1 = eta * eta - k * k - sin2
+    a2_plus_b2 = dr.safe_sqrt(t1 * t1 + 4.0 * k * k * eta * eta)
+    a = dr.safe_sqrt(0.5 * (a2_plus_b2 + t1))
+    term1, term2 = a2_plus_b2 + cos2, 2.0 * cos_i * a
+    r_s = (term1 - term2) / (term1 + term2)
+    term3, term4 = a2_plus_b2 * cos2 + sin2 * sin2, term2 * sin2
+    r_p = r_s * (term3 - term4) / (term3 + term4)
+    return 0.5 * (r_s + r_p)
+
+
+def fresnel_diffuse_reflectance(eta: float) -> float:
+    """Hemispherically averaged Fresnel reflectance of an interface of relative index eta, by the fits
+    Mitsuba uses: Egan and Hilgeman (1973) for eta < 1, d'Eon and Irving (2011) otherwise."""
+    inv = 1.0 / eta
+    if eta < 1.0:
+        return 0.0636 * inv + eta * (eta * -1.4399 + 0.7099) + 0.6681
+    return ((((-1.36881 * inv + 4.98554) * inv - 7.80989) * inv + 6.75335) * inv - 3.4793) * inv + 0.919317
+
+
+def plastic_specular_probability(f_i: Float, specular_weight: Float) -> Float:
+    """Probability that Mitsuba's smooth plastic samples its specular layer, given the Fresnel reflectance
+    at the incident angle and the specular share of the mean reflectances."""
+    spec = f_i * specular_weight
+    return spec / (spec + (1.0 - f_i) * (1.0 - specular_weight))
+
+
+def plastic_diffuse(albedo: Array3f, fdr_int: Float, nonlinear: Float, inv_eta2: Float, f_i: Float,
+                    f_o: Float) -> Array3f:
+    """The diffuse layer's f * pi of Mitsuba's smooth plastic: the base's reflectance seen through the
+    interface twice, with internal reflections summed (linearly, or per colour if `nonlinear`)."""
+    denominator = 1.0 - dr.select(nonlinear > 0, albedo * fdr_int, Array3f(fdr_int))
+    return albedo / denominator * (inv_eta2 * (1.0 - f_i) * (1.0 - f_o))

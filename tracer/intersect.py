@@ -8,6 +8,7 @@ exact test lets rays aimed at the edge slip between them (a crack that light lea
 margin grows each primitive by 1e-6 of its size, far below any image's resolution.
 """
 import drjit as dr
+import numpy as np
 
 from .jit import INF, Array3f, Bool, Float
 
@@ -87,3 +88,30 @@ def ray_sphere(o: Array3f, d: Array3f, center, radius: float, t_min, t_max, leav
     ok_far = (t_far > t_min) & (t_far < t_max)
     t = dr.select(ok_near, t_near, dr.select(ok_far, t_far, INF))
     return dr.select(disc >= 0, t, INF)
+
+
+def ray_cylinder(o: Array3f, d: Array3f, to_local: np.ndarray, t_min, t_max, leaving: Bool) -> Float:
+    """Nearest t in (t_min, t_max) where o + t d meets the open tube x^2 + y^2 = 1, 0 <= z <= 1 of the frame
+    with inverse affine map `to_local`. The quadratic in the frame's x, y is solved as ray_sphere's (Haines'
+    discriminant, the stable pair of roots); `leaving` marks rays that start on this tube: they can only meet
+    its far side, and only when heading inward."""
+    m = to_local
+    ox, oy, oz = (o.x * float(m[r, 0]) + o.y * float(m[r, 1]) + o.z * float(m[r, 2]) + float(m[r, 3]) for r in range(3))
+    dx, dy, dz = (d.x * float(m[r, 0]) + d.y * float(m[r, 1]) + d.z * float(m[r, 2]) for r in range(3))
+    a = dr.fma(dx, dx, dy * dy)
+    b = dr.fma(ox, dx, oy * dy)
+    c = dr.fma(ox, ox, dr.fma(oy, oy, -1.0))
+    s = b / a
+    px, py = dr.fma(dx, -s, ox), dr.fma(dy, -s, oy)
+    disc = a * (1.0 - dr.fma(px, px, py * py))
+    q = -b - dr.copysign(dr.safe_sqrt(disc), b)
+    r0, r1 = q / a, c / q
+    t_near, t_far = dr.minimum(r0, r1), dr.maximum(r0, r1)
+    t_far = dr.select(dr.isnan(t_far), t_near, t_far)
+    t_near = dr.select(leaving, INF, t_near)
+    t_far = dr.select(leaving & (b >= 0), INF, t_far)
+    z_near, z_far = dr.fma(dz, t_near, oz), dr.fma(dz, t_far, oz)
+    ok_near = (t_near > t_min) & (t_near < t_max) & (z_near >= 0) & (z_near <= 1)
+    ok_far = (t_far > t_min) & (t_far < t_max) & (z_far >= 0) & (z_far <= 1)
+    t = dr.select(ok_near, t_near, dr.select(ok_far, t_far, INF))
+    return dr.select((disc >= 0) & (a > 0), t, INF)

@@ -1,4 +1,4 @@
-"""Reading triangle meshes (Wavefront OBJ) and computing Mitsuba's smooth vertex normals."""
+"""Reading triangle meshes (Wavefront OBJ, Stanford PLY) and computing Mitsuba's smooth vertex normals."""
 from __future__ import annotations
 
 from functools import lru_cache
@@ -65,7 +65,10 @@ def _parse_statements(text: str, path: Path) -> tuple[np.ndarray, np.ndarray, np
     vn = None
     if normals and all(k[1] >= 0 for k in order):
         vn = np.asarray(normals, float)[[k[1] for k in order]]
-        vn /= np.linalg.norm(vn, axis=1, keepdims=True)
+        length = np.linalg.norm(vn, axis=1, keepdims=True)
+        if not np.all(length > 0):    # Mitsuba refuses these too
+            raise MeshError(f"{path}: a vertex normal (vn) has zero length")
+        vn /= length
     return vertices, np.asarray(faces, np.int64).reshape(-1, 3), vn
 
 
@@ -129,3 +132,49 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
         np.add.at(out, faces[:, i], n * angle[:, None])
     length = np.linalg.norm(out, axis=1, keepdims=True)
     return np.divide(out, length, out=np.zeros_like(out), where=length > 0)
+
+
+def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Vertices, triangles and per-vertex normals (None unless the file has nx, ny, nz) of a PLY file,
+    ASCII or binary (read with `plyfile`). Faces must be triangles, as Mitsuba requires."""
+    try:
+        stat = path.stat()
+        return _read_ply(path.resolve(), stat.st_size, stat.st_mtime_ns)
+    except OSError as e:
+        raise MeshError(f"cannot read mesh {path}: {e.strerror}") from None
+
+
+@lru_cache(maxsize=16)
+def _read_ply(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    from plyfile import PlyData, PlyParseError
+
+    try:
+        ply = PlyData.read(str(path))
+        vertex, face = ply["vertex"], ply["face"]
+        names = vertex.data.dtype.names
+        vertices = np.stack([np.asarray(vertex[k], float) for k in "xyz"], axis=1)
+        normals = np.stack([np.asarray(vertex[k], float) for k in ("nx", "ny", "nz")], axis=1) \
+            if all(k in names for k in ("nx", "ny", "nz")) else None
+        index = "vertex_indices" if "vertex_indices" in face.data.dtype.names else "vertex_index"
+        rows = face[index]
+    except (PlyParseError, KeyError, ValueError) as e:
+        raise MeshError(f"{path}: not a readable PLY mesh with vertex x, y, z and face vertex_indices ({e})") \
+            from None
+    if any(len(r) != 3 for r in rows):
+        raise MeshError(f"{path}: only triangular faces are supported (as in Mitsuba)")
+    faces = np.asarray(np.stack(rows) if len(rows) else np.zeros((0, 3)), np.int64).reshape(-1, 3)
+    if not len(faces):
+        raise MeshError(f"{path}: the mesh has no faces")
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise MeshError(f"{path}: a face names a vertex outside 0..{len(vertices) - 1}")
+    if not np.all(np.isfinite(vertices)):
+        raise MeshError(f"{path}: a vertex position is NaN or infinite")
+    if normals is not None:
+        length = np.linalg.norm(normals, axis=1, keepdims=True)
+        if not np.all(length > 0):
+            raise MeshError(f"{path}: a vertex normal has zero length")
+        normals = normals / length
+    for a in (vertices, faces, normals):
+        if a is not None:
+            a.flags.writeable = False
+    return vertices, faces, normals

@@ -1,7 +1,12 @@
-"""Loads the subset of Mitsuba 3's scene XML that the project's scenes use, with Mitsuba's semantics.
+"""Loads the subset of Mitsuba 3's scene XML that the tracer renders, with Mitsuba's semantics.
 
-Stdlib parsing only (expat, for line numbers). Anything outside the subset is refused before rendering
-with one line naming the file, the line, the element and what is supported.
+Stdlib parsing only (expat, for line numbers). `<include>` inlines another file, `<path>` adds a folder
+that files are looked up in, `<default>` declares a parameter (the first declaration wins; `-D` beats
+all), any plugin may be declared with an `id` and used through `<ref>`. Every property of every plugin
+is either honoured or refused by name: a property Mitsuba reads but the tracer does not implement is
+refused as unsupported, one that no plugin reads as unreferenced (Mitsuba refuses those too). Every
+refusal in a scene is reported at once, one line each naming the file, the line, the element and what
+is supported.
 """
 from __future__ import annotations
 
@@ -13,10 +18,15 @@ from xml.parsers import expat
 
 import numpy as np
 
-from . import transform
-from .meshes import MeshError, read_obj, vertex_normals
+from . import spectra, transform
+from .bitmap import BitmapError, read_bitmap
+from .envmap import EnvmapError, read_exr_rgb
 from .film import ReconstructionFilter
-from .scene import BSDF, Camera, Mesh, Rectangle, Scene, SceneError, Sphere
+from .ior import named_conductor, named_ior
+from .meshes import MeshError, read_obj, read_ply, vertex_normals
+from .scene import (BSDF, Bitmap, Camera, Checkerboard, Cylinder, DirectionalLight, EnvironmentMap, Mesh, PointLight,
+                    Rectangle, Scene, SceneError, Sphere)
+from .serialized import read_serialized
 
 SUPPORTED = {
     "integrator": ("path",),
@@ -24,13 +34,60 @@ SUPPORTED = {
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian", "tent"),
     "sampler": ("independent",),
-    "shape": ("rectangle", "sphere", "obj"),
-    "bsdf": ("diffuse", "twosided", "conductor", "dielectric"),
-    "emitter": ("area",),
+    "shape": ("rectangle", "disk", "sphere", "cylinder", "obj", "ply", "serialized"),
+    "bsdf": ("diffuse", "twosided", "conductor", "dielectric", "plastic"),
+    "emitter": ("area", "constant", "envmap", "point", "spot", "directional"),
+    "texture": ("checkerboard", "bitmap"),
+}
+PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf", "emitter", "texture",
+               "medium", "phase", "volume", "spectrum")
+PROPERTY_TAGS = ("integer", "float", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform")
+COLOUR_TAGS = ("float", "integer", "rgb", "spectrum")
+TRANSFORM_OPS = ("translate", "scale", "rotate", "matrix", "lookat")
+MAX_INCLUDE_DEPTH = 32
+
+# The parameters each supported plugin reads in Mitsuba 3 (its plugin source and documentation), so that a
+# parameter the tracer does not implement is refused as such rather than as a misspelling.
+MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
+    ("integrator", "path"): ("max_depth", "rr_depth", "hide_emitters", "block_size", "samples_per_pass",
+                             "timeout"),
+    ("sensor", "perspective"): ("to_world", "fov", "fov_axis", "focal_length", "near_clip", "far_clip",
+                                "focus_distance", "principal_point_offset_x", "principal_point_offset_y",
+                                "shutter_open", "shutter_close", "srf"),
+    ("film", "hdrfilm"): ("width", "height", "crop_offset_x", "crop_offset_y", "crop_width", "crop_height",
+                          "sample_border", "pixel_format", "component_format", "file_format", "compensate",
+                          "banner"),
+    ("rfilter", "box"): (),
+    ("rfilter", "gaussian"): ("stddev",),
+    ("rfilter", "tent"): ("radius",),
+    ("sampler", "independent"): ("sample_count", "seed"),
+    ("shape", "rectangle"): ("to_world", "flip_normals", "silhouette_sampling_weight"),
+    ("shape", "disk"): ("to_world", "flip_normals", "silhouette_sampling_weight"),
+    ("shape", "cylinder"): ("p0", "p1", "radius", "to_world", "flip_normals", "silhouette_sampling_weight"),
+    ("shape", "sphere"): ("center", "radius", "to_world", "flip_normals", "silhouette_sampling_weight"),
+    ("shape", "obj"): ("filename", "face_normals", "flip_normals", "flip_tex_coords", "to_world",
+                       "silhouette_sampling_weight"),
+    ("shape", "ply"): ("filename", "face_normals", "flip_normals", "flip_tex_coords", "to_world",
+                       "silhouette_sampling_weight"),
+    ("shape", "serialized"): ("filename", "shape_index", "face_normals", "flip_normals", "to_world",
+                              "silhouette_sampling_weight"),
+    ("bsdf", "diffuse"): ("reflectance",),
+    ("bsdf", "twosided"): ("allow_transmission",),
+    ("bsdf", "conductor"): ("material", "eta", "k", "specular_reflectance"),
+    ("bsdf", "dielectric"): ("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"),
+    ("bsdf", "plastic"): ("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "nonlinear"),
+    ("texture", "checkerboard"): ("color0", "color1", "to_uv"),
+    ("texture", "bitmap"): ("filename", "bitmap", "data", "raw", "filter_type", "wrap_mode", "to_uv", "format",
+                            "accel"),
+    ("emitter", "area"): ("radiance", "sampling_weight"),
+    ("emitter", "point"): ("position", "to_world", "intensity", "sampling_weight"),
+    ("emitter", "spot"): ("to_world", "intensity", "cutoff_angle", "beam_width", "texture", "sampling_weight"),
+    ("emitter", "directional"): ("direction", "to_world", "irradiance", "sampling_weight"),
+    ("emitter", "constant"): ("radiance", "sampling_weight", "to_world"),
+    ("emitter", "envmap"): ("filename", "bitmap", "scale", "to_world", "mis_compensation", "sampling_weight"),
 }
 FLOAT32_MAX = float(np.finfo(np.float32).max)
-PROPERTY_TAGS = ("integer", "float", "boolean", "string", "rgb", "point", "vector", "transform")
-TRANSFORM_OPS = ("translate", "scale", "rotate", "matrix", "lookat")
+DEFAULT_FILM = {"width": 768, "height": 576, "rfilter": ReconstructionFilter("gaussian")}   # Mitsuba's hdrfilm
 
 
 @dataclass
@@ -39,18 +96,27 @@ class Node:
     attrib: dict[str, str]
     line: int
     children: list["Node"] = field(default_factory=list)
+    file: Path | None = None
+
+
+class _Reported(SceneError):
+    """A failure already recorded in the context's error list (a shared object used a second time)."""
 
 
 class _Context:
-    def __init__(self, path: Path, params: dict[str, str]):
+    def __init__(self, path: Path, params: dict[str, str], resolver: list[Path] | None = None):
         self.path = path
         self.params = dict(params)
         self.used: set[str] = set()
         self.ids: dict[str, Node] = {}
+        self.resolver = resolver if resolver is not None else [path.parent]
+        self.errors: list[str] = []
+        self.built: dict[int, object] = {}
 
     def error(self, node: Node | None, message: str) -> SceneError:
-        where = f"{self.path}:{node.line}: <{node.tag}{_type_attr(node)}>" if node else f"{self.path}"
-        return SceneError(f"{where}: {message}")
+        if node is None:
+            return SceneError(f"{self.path}: {message}")
+        return SceneError(f"{node.file or self.path}:{node.line}: <{node.tag}{_type_attr(node)}>: {message}")
 
     def attr(self, node: Node, key: str, default: str | None = None) -> str:
         if key not in node.attrib:
@@ -69,6 +135,41 @@ class _Context:
 
         return re.sub(r"\$([A-Za-z_][A-Za-z0-9_]*)", repl, value)
 
+    def resolve(self, name: str, first: Path | None = None) -> Path:
+        """A file named in the scene, looked up like Mitsuba's file resolver: in `first`, then in the
+        folders of the scene's <path> elements (latest first), then beside the scene file."""
+        p = Path(name)
+        if p.is_absolute():
+            return p
+        for folder in ([first] if first else []) + self.resolver:
+            if (folder / p).exists():
+                return folder / p
+        return (first or self.resolver[-1]) / p
+
+    def attempt(self, build, *args, default=None):
+        """build(*args), recording a refusal instead of raising it, so that all are reported at once."""
+        try:
+            return build(*args)
+        except _Reported:
+            return default
+        except SceneError as e:
+            self.errors.append(str(e))
+            return default
+
+    def built_once(self, node: Node, build):
+        """An object declared once and used by several others is built (and refused) once."""
+        key = id(node)
+        if key not in self.built:
+            try:
+                self.built[key] = build(node)
+            except SceneError as e:
+                self.built[key] = e
+                raise
+        value = self.built[key]
+        if isinstance(value, SceneError):
+            raise _Reported(str(value))
+        return value
+
 
 def _type_attr(node: Node) -> str:
     return f" type=\"{node.attrib['type']}\"" if "type" in node.attrib else (
@@ -76,13 +177,13 @@ def _type_attr(node: Node) -> str:
 
 
 def parse_tree(path: Path) -> Node:
-    """The XML file as a tree of Nodes that remember their line numbers."""
+    """The XML file as a tree of Nodes that remember their file and line numbers."""
     stack: list[Node] = []
     root: list[Node] = []
     parser = expat.ParserCreate()
 
     def start(tag, attrib):
-        node = Node(tag, dict(attrib), parser.CurrentLineNumber)
+        node = Node(tag, dict(attrib), parser.CurrentLineNumber, file=path)
         (stack[-1].children if stack else root).append(node)
         stack.append(node)
 
@@ -105,87 +206,216 @@ def load_scene(path: str | Path, **overrides) -> Scene:
     """Reads a Mitsuba scene file; `overrides` replace `<default>` values exactly like `mitsuba -D`."""
     path = Path(path)
     root = parse_tree(path)
-    ctx = _Context(path, {})
+    ctx = _Context(path, {k: str(v) for k, v in overrides.items()})
     if root.tag != "scene":
         raise ctx.error(root, "the root element must be <scene>")
-    for node in root.children:
-        if node.tag == "default":
-            ctx.params[ctx.attr(node, "name")] = node.attrib.get("value", "")
-    ctx.params.update({k: str(v) for k, v in overrides.items()})
+    _expand(ctx, root, ctx.resolver, depth=0)
+    if ctx.errors:
+        raise SceneError("\n".join(ctx.errors))
     _collect_ids(ctx, root)
     scene = _build_scene(ctx, root)
     unused = [k for k in overrides if k not in ctx.used]
     if unused:
         declared = ", ".join(sorted(n for n in ctx.params if n in ctx.used)) or "none"
-        raise SceneError(f"{path}: -D {unused[0]}: the scene uses no parameter of that name (it uses: {declared})")
+        ctx.errors.append(f"{path}: -D {unused[0]}: the scene uses no parameter of that name (it uses: {declared})")
+    if ctx.errors:
+        raise SceneError("\n".join(dict.fromkeys(ctx.errors)))
     return scene
+
+
+# ---- <default>, <path>, <include> ---------------------------------------------------------------------
+def _expand(ctx: _Context, node: Node, resolver: list[Path], depth: int) -> None:
+    """Processes `node`'s <default>, <path> and <include> children in document order: defaults declare
+    parameters, paths extend `resolver` (only as children of a file's <scene>), includes are replaced by
+    the included file's elements."""
+    children: list[Node] = []
+    for child in node.children:
+        if child.tag == "default":
+            ctx.attempt(_default, ctx, child)
+        elif child.tag == "path":
+            if depth < 0:
+                ctx.errors.append(str(ctx.error(child, "<path> may only be a child of <scene>")))
+            else:
+                ctx.attempt(_path, ctx, child, resolver)
+        elif child.tag == "include":
+            children += ctx.attempt(_include, ctx, child, node, resolver, depth, default=[])
+        else:
+            _check_declared(ctx, child)
+            _expand(ctx, child, resolver, -1)
+            children.append(child)
+    node.children = children
+
+
+def _check_declared(ctx: _Context, node: Node) -> None:
+    """Mitsuba substitutes $name while it reads the file: a parameter must be declared (by -D or a <default>)
+    before the element that uses it."""
+    for value in node.attrib.values():
+        for name in re.findall(r"\$([A-Za-z_][A-Za-z0-9_]*)", value):
+            if name not in ctx.params:
+                ctx.errors.append(str(ctx.error(node, f"parameter ${name} is used before a <default> declares it "
+                                                      f"(add <default name=\"{name}\" .../> above, or -D {name}=...)")))
+
+
+def _default(ctx: _Context, node: Node) -> None:
+    name = ctx.attr(node, "name")
+    if not name:
+        raise ctx.error(node, "name must be non-empty")
+    ctx.params.setdefault(name, ctx.attr(node, "value"))
+
+
+def _path(ctx: _Context, node: Node, resolver: list[Path]) -> None:
+    value = ctx.attr(node, "value")
+    folder = Path(value)
+    if not folder.is_absolute():
+        folder = node.file.parent / value if (node.file.parent / value).exists() else ctx.resolve(value)
+    if not folder.is_dir():
+        raise ctx.error(node, f"folder '{value}' not found")
+    resolver.insert(0, folder)
+
+
+def _include(ctx: _Context, node: Node, parent: Node, resolver: list[Path], depth: int) -> list[Node]:
+    if depth >= MAX_INCLUDE_DEPTH:
+        raise ctx.error(node, f"includes nested deeper than {MAX_INCLUDE_DEPTH} (does a file include itself?)")
+    name = ctx.attr(node, "filename")
+    local = [node.file.parent] + resolver
+    file = next((f / name for f in local if (f / name).is_file()), None) if not Path(name).is_absolute() \
+        else Path(name)
+    if file is None or not file.is_file():
+        raise ctx.error(node, f"included file '{name}' not found (looked in {', '.join(map(str, local))})")
+    try:
+        root = parse_tree(file)
+    except SceneError as e:
+        raise ctx.error(node, f"while reading the included file: {e}") from None
+    if root.tag != "scene":
+        if "name" in node.attrib:
+            root.attrib.setdefault("name", node.attrib["name"])
+        _expand(ctx, root, list(local), -1)
+        return [root]
+    _expand(ctx, root, list(local), depth + 1)
+    return root.children
 
 
 def _collect_ids(ctx: _Context, node: Node) -> None:
     for child in node.children:
-        if "id" in child.attrib and child.tag in ("bsdf", "shape", "emitter", "texture"):
-            ctx.ids[child.attrib["id"]] = child
+        if "id" in child.attrib and child.tag in PLUGIN_TAGS:
+            name = child.attrib["id"]
+            if name in ctx.ids:
+                first = ctx.ids[name]
+                ctx.errors.append(str(ctx.error(child, f"duplicate id '{name}' (first declared at "
+                                                       f"{first.file}:{first.line})")))
+            else:
+                ctx.ids[name] = child
         _collect_ids(ctx, child)
 
 
-def _build_scene(ctx: _Context, root: Node) -> Scene:
-    camera, sampler_props, integrator = None, {}, {}
-    shapes: list[Node] = []
-    for node in root.children:
-        if node.tag in ("default", "bsdf"):
-            continue
-        if node.tag == "integrator":
-            _check_type(ctx, node)
-            integrator = _properties(ctx, node)
-        elif node.tag == "sensor":
-            _check_type(ctx, node)
-            camera, sampler_props = _camera(ctx, node)
-        elif node.tag == "shape":
-            shapes.append(node)
-        else:
-            raise ctx.error(node, "unsupported element; a scene may hold default, integrator, sensor, bsdf, shape")
-    if camera is None:
-        raise ctx.error(root, "the scene has no <sensor type=\"perspective\">")
-    scene = Scene(
-        camera=camera,
-        spp=int(sampler_props.get("sample_count", 4)),
-        seed=int(sampler_props.get("seed", 0)),
-        max_depth=int(integrator.get("max_depth", -1)),
-        rr_depth=int(integrator.get("rr_depth", 5)),
-        path=ctx.path,
-    )
-    if scene.spp < 1:
-        raise ctx.error(root, f"sample_count must be >= 1, got {scene.spp}")
-    for node in shapes:
-        _add_shape(ctx, scene, node)
-    return scene
+# ---- properties -------------------------------------------------------------------------------------
+class _Props:
+    """A plugin's properties and child objects. Reading one marks it used; finish() refuses the rest by
+    name, as Mitsuba refuses unreferenced properties."""
+
+    def __init__(self, ctx: _Context, node: Node, kind: str, emitter: bool = False):
+        self.ctx, self.node, self.kind, self.emitter = ctx, node, kind, emitter
+        self.values: dict[str, Node] = {}
+        self.objects: list[Node] = []
+        self.read: set[str] = set()
+        self.taken: set[int] = set()
+        for child in node.children:
+            if child.tag in PROPERTY_TAGS:
+                name = ctx.attr(child, "name")
+                if name in self.values:
+                    raise ctx.error(child, f"property '{name}' is given twice")
+                self.values[name] = child
+            elif child.tag in PLUGIN_TAGS or child.tag == "ref":
+                self.objects.append(child)
+            else:
+                raise ctx.error(child, f"unexpected element inside <{node.tag}>")
+
+    def has(self, name: str) -> bool:
+        return name in self.values
+
+    def get(self, name: str, default=None, tags: tuple[str, ...] | None = None):
+        """The value of property `name` (`default` when absent); `tags`: the element types accepted."""
+        child = self.values.get(name)
+        self.read.add(name)
+        if child is None:
+            return default
+        if tags is not None and child.tag not in tags:
+            raise self.ctx.error(child, f"property '{name}' must be given as <{'> or <'.join(tags)}>")
+        return _property_value(self.ctx, child, self.emitter)
+
+    def colour(self, name: str, default: float, unbounded: bool = False, textured: bool = False):
+        """A reflectance, a radiance (on an emitter) or an `unbounded` quantity such as a conductor's eta:
+        <rgb>, <spectrum>, <float>; where `textured`, also a `checkerboard` texture (inline or by <ref>)."""
+        refs = [o for o in self.objects if o.attrib.get("name") == name]
+        if refs:
+            self.taken.add(id(refs[0]))
+            node = _resolve_ref(self.ctx, refs[0]) if refs[0].tag == "ref" else refs[0]
+            if textured and node.tag == "texture":
+                return self.ctx.built_once(node, lambda n: _texture(self.ctx, n))
+            where = "supported: <rgb>, <spectrum>, <float>" + (", a checkerboard or bitmap <texture>" if textured else "")
+            raise self.ctx.error(refs[0], f"'{name}' given by a <{node.tag}{_type_attr(node)}>: unsupported; {where}")
+        child = self.values.get(name)
+        if child is not None and child.tag == "spectrum" and unbounded:
+            self.read.add(name)
+            return _property_value(self.ctx, child, emitter=False, unbounded=True)
+        value = self.get(name, default, COLOUR_TAGS)
+        return np.broadcast_to(np.asarray(value, float), 3).copy()
+
+    def children(self, *tags: str) -> list[Node]:
+        """Child objects of the given element types, references resolved; marked used."""
+        out = []
+        for o in self.objects:
+            target = _resolve_ref(self.ctx, o) if o.tag == "ref" else o
+            if target.tag in tags:
+                self.taken.add(id(o))
+                out.append(target)
+        return out
+
+    def ignore(self, *names: str) -> None:
+        """Parameters that cannot change the image (scheduling, metadata, differentiable rendering)."""
+        self.read.update(names)
+
+    def finish(self) -> None:
+        documented = MITSUBA_PARAMETERS.get((self.node.tag, self.kind), ())
+        honoured = [n for n in documented if n in self.read]
+        for name, child in self.values.items():
+            if name in self.read:
+                continue
+            if name in documented:
+                message = f"'{name}' is not supported by the tracer"
+            else:
+                message = f"unreferenced property '{name}' (Mitsuba refuses it too)"
+            self.ctx.errors.append(str(self.ctx.error(
+                child, f"{message}; {self.node.tag} '{self.kind}' supported: {', '.join(honoured) or 'none'}")))
+        for o in self.objects:
+            if id(o) not in self.taken:
+                target = self.ctx.ids.get(o.attrib.get("id", ""), o) if o.tag == "ref" else o
+                what = f"<{target.tag}{_type_attr(target)}>" + (f" as '{o.attrib['name']}'" if "name" in o.attrib else "")
+                self.ctx.errors.append(str(self.ctx.error(
+                    o, f"{what} inside <{self.node.tag} type=\"{self.kind}\"> is unsupported")))
 
 
-def _check_type(ctx: _Context, node: Node) -> str:
-    kind = ctx.attr(node, "type")
-    if kind not in SUPPORTED[node.tag]:
-        raise ctx.error(node, f"unsupported {node.tag} plugin '{kind}'; supported: {', '.join(SUPPORTED[node.tag])}")
-    return kind
+def _resolve_ref(ctx: _Context, node: Node) -> Node:
+    name = ctx.attr(node, "id")
+    target = ctx.ids.get(name)
+    if target is None:
+        raise ctx.error(node, f"no object with id '{name}'")
+    return target
 
 
-def _properties(ctx: _Context, node: Node, allowed_children: tuple[str, ...] = ()) -> dict:
-    """Named properties of an element: numbers, strings, booleans, colours, points and transforms."""
-    props: dict = {}
-    for child in node.children:
-        if child.tag in allowed_children:
-            continue
-        if child.tag not in PROPERTY_TAGS:
-            raise ctx.error(child, f"unexpected element inside <{node.tag}>")
-        props[ctx.attr(child, "name")] = _property_value(ctx, child)
-    return props
-
-
-def _property_value(ctx: _Context, node: Node):
+def _property_value(ctx: _Context, node: Node, emitter: bool = False, unbounded: bool = False):
     tag = node.tag
     if tag == "transform":
         return _transform(ctx, node)
     if tag in ("point", "vector") and "value" not in node.attrib:
         return np.array([_number(ctx, node, ctx.attr(node, k, "0")) for k in "xyz"])
+    if tag == "spectrum":
+        if "filename" in node.attrib or "type" in node.attrib:
+            raise ctx.error(node, "spectra from files or plugins are unsupported; supported: value=\"...\"")
+        try:
+            return spectra.to_rgb(ctx.attr(node, "value"), emitter, unbounded)
+        except spectra.SpectrumError as e:
+            raise ctx.error(node, str(e)) from None
     value = ctx.attr(node, "value")
     if tag == "string":
         return value
@@ -224,6 +454,7 @@ def _numbers(ctx: _Context, node: Node, text: str) -> list[float]:
     return [_number(ctx, node, t) for t in text.replace(",", " ").split()]
 
 
+# ---- transforms -------------------------------------------------------------------------------------
 def _transform(ctx: _Context, node: Node) -> np.ndarray:
     m = np.eye(4)
     for op in node.children:
@@ -274,126 +505,545 @@ def _transform_op(ctx: _Context, op: Node) -> np.ndarray:
     return transform.lookat(o, t, u)
 
 
+# ---- the scene ----------------------------------------------------------------------------------------
+def _check_type(ctx: _Context, node: Node) -> str:
+    kind = ctx.attr(node, "type")
+    if kind not in SUPPORTED.get(node.tag, ()):
+        supported = ", ".join(SUPPORTED.get(node.tag, ())) or "none"
+        raise ctx.error(node, f"unsupported {node.tag} plugin '{kind}'; supported: {supported}")
+    return kind
+
+
+def _build_scene(ctx: _Context, root: Node) -> Scene | None:
+    integrators, sensors, shapes, environments, points, directionals = [], [], [], [], [], []
+    for node in root.children:
+        if node.tag == "integrator":
+            integrators.append(node)
+        elif node.tag == "sensor":
+            sensors.append(node)
+        elif node.tag == "shape":
+            shapes.append(node)
+        elif node.tag in ("bsdf", "film", "rfilter", "sampler", "texture", "spectrum") and "id" in node.attrib:
+            ctx.attempt(_declared, ctx, node)        # used through <ref>; built (and checked) on their own
+        elif node.tag == "emitter" and "id" in node.attrib and _emitter_type(node) == "area":
+            ctx.attempt(_declared, ctx, node)        # an area light declared for a shape's <ref>
+        elif node.tag == "emitter" and _emitter_type(node) in ("constant", "envmap"):
+            environments.append(node)
+        elif node.tag == "emitter" and _emitter_type(node) in ("point", "spot"):
+            points.append(node)
+        elif node.tag == "emitter" and _emitter_type(node) == "directional":
+            directionals.append(node)
+        elif node.tag in PLUGIN_TAGS:
+            if ctx.attempt(_check_type, ctx, node) is not None:
+                ctx.errors.append(str(ctx.error(node, f"a top-level <{node.tag}> is unsupported; supported at the "
+                                                      "top level: integrator, sensor, shape, and plugins with an id")))
+        else:
+            ctx.errors.append(str(ctx.error(node, "unsupported element; a scene may hold default, path, include, "
+                                                  "integrator, sensor, shape and plugins with an id")))
+    for extra in integrators[1:]:
+        ctx.errors.append(str(ctx.error(extra, "only one integrator may be specified per scene (as in Mitsuba)")))
+    for extra in environments[1:]:
+        ctx.errors.append(str(ctx.error(extra, "only one environment emitter may be specified per scene (as in Mitsuba)")))
+    for extra in sensors[1:]:
+        ctx.errors.append(str(ctx.error(extra, "a second sensor: the tracer renders scenes with one sensor")))
+    integrator = ctx.attempt(_integrator, ctx, integrators[0], default={}) if integrators else {}
+    if not sensors:
+        ctx.errors.append(str(ctx.error(root, "the scene has no <sensor type=\"perspective\">")))
+        camera, sampler = None, {}
+    else:
+        camera, sampler = ctx.attempt(_camera, ctx, sensors[0], default=(None, {}))
+    scene = Scene(
+        camera=camera,
+        spp=int(sampler.get("sample_count", 4)),
+        seed=int(sampler.get("seed", 0)),
+        max_depth=int(integrator.get("max_depth", -1)),
+        rr_depth=int(integrator.get("rr_depth", 5)),
+        path=ctx.path,
+    )
+    for node in points:
+        light = ctx.attempt(_spot_light if _emitter_type(node) == "spot" else _point_light, ctx, node)
+        if light is not None:
+            scene.point_lights.append(light)
+    for node in directionals:
+        light = ctx.attempt(_directional_light, ctx, node)
+        if light is not None:
+            scene.directional_lights.append(light)
+    if environments and _emitter_type(environments[0]) == "envmap":
+        scene.envmap = ctx.attempt(_envmap, ctx, environments[0])
+    elif environments:
+        scene.environment = ctx.attempt(_constant_light, ctx, environments[0])
+    for node in shapes:
+        ctx.attempt(_add_shape, ctx, scene, node)
+    return scene
+
+
+def _emitter_type(node: Node) -> str:
+    return node.attrib.get("type", "")
+
+
+def _declared(ctx: _Context, node: Node) -> None:
+    build = {"bsdf": _bsdf, "film": _film, "rfilter": _rfilter, "sampler": _sampler, "emitter": _area_light,
+             "texture": _texture}
+    if node.tag not in build:
+        _check_type(ctx, node)
+        raise ctx.error(node, f"<{node.tag}> is unsupported")
+    ctx.built_once(node, lambda n: build[n.tag](ctx, n))
+
+
+def _integrator(ctx: _Context, node: Node) -> dict:
+    kind = _check_type(ctx, node)
+    props = _Props(ctx, node, kind)
+    out = {"max_depth": props.get("max_depth", -1, ("integer",)), "rr_depth": props.get("rr_depth", 5, ("integer",)),
+           "hide_emitters": props.get("hide_emitters", False, ("boolean",))}
+    props.ignore("block_size", "samples_per_pass")        # how work is scheduled: not the estimate
+    props.finish()
+    if out["hide_emitters"]:   # Mitsuba lets camera rays pass through area lights: not implemented
+        raise ctx.error(props.values["hide_emitters"], "hide_emitters = true is not supported by the tracer")
+    if out["max_depth"] < -1:
+        raise ctx.error(node, f"max_depth must be -1 (unbounded) or >= 0, got {out['max_depth']}")
+    if out["rr_depth"] < 1:
+        raise ctx.error(node, f"rr_depth must be >= 1, got {out['rr_depth']}")
+    return out
+
+
 def _camera(ctx: _Context, node: Node) -> tuple[Camera, dict]:
-    props = _properties(ctx, node, allowed_children=("film", "sampler"))
-    film, sampler = {"width": 768, "height": 576}, {}
-    for child in node.children:
-        if child.tag == "film":
-            _check_type(ctx, child)
-            for rf in (c for c in child.children if c.tag == "rfilter"):
-                film["rfilter"] = _rfilter(ctx, rf)
-            film.update(_properties(ctx, child, allowed_children=("rfilter",)))
-        elif child.tag == "sampler":
-            _check_type(ctx, child)
-            sampler = _properties(ctx, child)
-    fov_axis = props.get("fov_axis", "x")
-    if fov_axis not in ("x", "y", "diagonal", "smaller", "larger"):
-        raise ctx.error(node, f"fov_axis '{fov_axis}' unsupported; supported: x, y, diagonal, smaller, larger")
-    fov = float(props.get("fov", 90.0))
+    kind = _check_type(ctx, node)
+    props = _Props(ctx, node, kind)
+    films = props.children("film")
+    samplers = props.children("sampler")
+    film = ctx.built_once(films[0], lambda n: _film(ctx, n)) if films else dict(DEFAULT_FILM)
+    sampler = ctx.built_once(samplers[0], lambda n: _sampler(ctx, n)) if samplers else {}
+    w, h = film["width"], film["height"]
+    if props.has("fov") and props.has("focal_length"):
+        raise ctx.error(node, "give either fov or focal_length, not both (as in Mitsuba)")
+    if props.has("fov"):
+        fov = props.get("fov", tags=("float", "integer"))
+        fov_axis = props.get("fov_axis", "x", ("string",)).lower()
+        if fov_axis not in ("x", "y", "diagonal", "smaller", "larger"):
+            raise ctx.error(node, f"fov_axis '{fov_axis}' unsupported; supported: x, y, diagonal, smaller, larger")
+    else:   # a 35 mm film (36 x 24 mm) behind a lens of this focal length; Mitsuba's default: 50mm
+        text = props.get("focal_length", "50mm", ("string",))
+        try:
+            f = float(text[:-2] if text.endswith("mm") else text)
+        except ValueError:
+            raise ctx.error(node, f"focal_length '{text}' is not of the form <x>mm") from None
+        if not f > 0:
+            raise ctx.error(node, f"focal_length must be positive, got {text}")
+        fov, fov_axis = 2.0 * math.degrees(math.atan(math.hypot(36.0, 24.0) / (2.0 * f))), "diagonal"
     if not 0 < fov < 180:
         raise ctx.error(node, f"fov must lie in (0, 180), got {fov}")
-    w, h = int(film["width"]), int(film["height"])
+    near, far = props.get("near_clip", 1e-2, ("float", "integer")), props.get("far_clip", 1e4, ("float", "integer"))
+    if not 0 < near < far:
+        raise ctx.error(node, f"near_clip must be positive and smaller than far_clip, got {near} and {far}")
+    props.get("focus_distance", tags=("float", "integer"))   # read by Mitsuba's projective cameras; a pinhole has no focus
+    for name in ("principal_point_offset_x", "principal_point_offset_y"):
+        if props.get(name, 0.0, ("float", "integer")) != 0:
+            raise ctx.error(props.values[name], f"{name} other than 0 is not supported by the tracer")
+    shutter = [props.get(k, 0.0, ("float", "integer")) for k in ("shutter_open", "shutter_close")]
+    if shutter[0] > shutter[1]:           # nothing in the scene moves: only Mitsuba's own check matters
+        raise ctx.error(node, f"shutter_open ({shutter[0]}) must not exceed shutter_close ({shutter[1]}), as in Mitsuba")
+    to_world = props.get("to_world", np.eye(4), ("transform",))
+    props.finish()
+    camera = Camera(to_world, float(fov), fov_axis, float(near), float(far), w, h, film["rfilter"])
+    return camera, sampler
+
+
+def _film(ctx: _Context, node: Node) -> dict:
+    kind = _check_type(ctx, node)
+    props = _Props(ctx, node, kind)
+    rfilters = props.children("rfilter")
+    rfilter = ctx.built_once(rfilters[0], lambda n: _rfilter(ctx, n)) if rfilters else ReconstructionFilter("gaussian")
+    w, h = props.get("width", 768, ("integer",)), props.get("height", 576, ("integer",))
     if w < 1 or h < 1:
         raise ctx.error(node, f"film size must be positive, got {w} x {h}")
-    camera = Camera(props.get("to_world", np.eye(4)), fov, fov_axis, float(props.get("near_clip", 1e-2)),
-                    float(props.get("far_clip", 1e4)), w, h, film.get("rfilter", ReconstructionFilter("gaussian")))
-    return camera, sampler
+    crop = {k: props.get(k, None, ("integer",)) for k in ("crop_offset_x", "crop_offset_y", "crop_width", "crop_height")}
+    full = {"crop_offset_x": 0, "crop_offset_y": 0, "crop_width": w, "crop_height": h}
+    for name, value in crop.items():
+        if value is not None and value != full[name]:
+            raise ctx.error(props.values[name], f"{name} = {value} (a film crop) is not supported by the tracer")
+    if props.get("sample_border", False, ("boolean",)):
+        raise ctx.error(props.values["sample_border"], "sample_border = true is not supported by the tracer")
+    # The tracer writes the film's RGB as float32 OpenEXR: formats that store the same RGB are accepted.
+    for name, accepted in (("pixel_format", ("rgb", "rgba")), ("component_format", ("float32",)),
+                           ("file_format", ("openexr", "exr"))):
+        value = props.get(name, accepted[0], ("string",))
+        if value.lower() not in accepted:
+            raise ctx.error(props.values[name], f"{name} '{value}' is not supported; supported: {', '.join(accepted)}")
+    props.ignore("banner", "compensate")     # metadata in the file; summation accuracy of the film
+    props.finish()
+    return {"width": w, "height": h, "rfilter": rfilter}
+
+
+def _sampler(ctx: _Context, node: Node) -> dict:
+    kind = _check_type(ctx, node)
+    props = _Props(ctx, node, kind)
+    out = {"sample_count": props.get("sample_count", 4, ("integer",)), "seed": props.get("seed", 0, ("integer",))}
+    props.finish()
+    if out["sample_count"] < 1:
+        raise ctx.error(node, f"sample_count must be >= 1, got {out['sample_count']}")
+    return out
 
 
 def _rfilter(ctx: _Context, node: Node) -> ReconstructionFilter:
     kind = _check_type(ctx, node)
-    props = _properties(ctx, node)
-    allowed = {"box": (), "gaussian": ("stddev",), "tent": ("radius",)}[kind]
-    for name in props:
-        if name not in allowed:
-            raise ctx.error(node, f"rfilter '{kind}' has no property '{name}'; supported: {', '.join(allowed) or 'none'}")
-    value = float(props.get(allowed[0], 0.5 if kind == "gaussian" else 1.0)) if allowed else 0.0
-    if allowed and not 0 < value <= 8:
-        raise ctx.error(node, f"rfilter '{kind}' {allowed[0]} must lie in (0, 8] pixels, got {value}")
+    props = _Props(ctx, node, kind)
+    if kind == "box":
+        props.finish()
+        return ReconstructionFilter("box")
+    name = "stddev" if kind == "gaussian" else "radius"
+    value = float(props.get(name, 0.5 if kind == "gaussian" else 1.0, ("float", "integer")))
+    props.finish()
+    if not 0 < value <= 8:
+        raise ctx.error(node, f"rfilter '{kind}' {name} must lie in (0, 8] pixels, got {value}")
     if kind == "gaussian":
         return ReconstructionFilter("gaussian", stddev=value)
-    return ReconstructionFilter("tent", tent_radius=value) if kind == "tent" else ReconstructionFilter("box")
+    return ReconstructionFilter("tent", tent_radius=value)
 
 
 def _bsdf(ctx: _Context, node: Node) -> BSDF:
-    if node.tag == "ref":
-        ref = ctx.ids.get(ctx.attr(node, "id"))
-        if ref is None or ref.tag != "bsdf":
-            raise ctx.error(node, f"no <bsdf> with id '{node.attrib.get('id')}'")
-        node = ref
     kind = _check_type(ctx, node)
+    props = _Props(ctx, node, kind)
     if kind == "twosided":
-        inner = [c for c in node.children if c.tag in ("bsdf", "ref")]
-        if len(inner) != 1:
-            raise ctx.error(node, "twosided wraps exactly one bsdf")
-        base = _bsdf(ctx, inner[0])
-        if base.kind != "diffuse":
-            raise ctx.error(node, "twosided supports a diffuse bsdf only")
-        return BSDF("diffuse", base.reflectance, twosided=True)
-    props = _properties(ctx, node)
+        inner = props.children("bsdf")
+        if props.get("allow_transmission", False, ("boolean",)):
+            raise ctx.error(props.values["allow_transmission"], "allow_transmission = true is not supported")
+        props.finish()
+        if len(inner) not in (1, 2):
+            raise ctx.error(node, "twosided wraps one bsdf (or two)")
+        bases = [ctx.built_once(b, lambda n: _bsdf(ctx, n)) for b in inner]
+        if any(b.kind != "diffuse" or b.twosided for b in bases):
+            raise ctx.error(node, "twosided supports one-sided diffuse bsdfs only")
+        if len(bases) == 2 and bases[0] != bases[1]:
+            raise ctx.error(node, "twosided with different front and back bsdfs is unsupported")
+        return BSDF("diffuse", bases[0].reflectance, twosided=True)
     if kind == "diffuse":
-        rho = np.broadcast_to(np.asarray(props.get("reflectance", 0.5), float), 3)
+        rho = props.colour("reflectance", 0.5, textured=True)
+        props.finish()
+        if not isinstance(rho, np.ndarray):
+            return BSDF("diffuse", (0.0, 0.0, 0.0), texture=rho)
         if np.any(rho < 0) or np.any(rho > 1):
             raise ctx.error(node, f"diffuse reflectance must lie in [0, 1], got {tuple(float(x) for x in rho)}")
         return BSDF("diffuse", tuple(float(x) for x in rho))
     if kind == "conductor":
-        if props.get("material", "none") != "none":
-            raise ctx.error(node, "only conductor material 'none' (a perfect mirror) is supported")
-        return BSDF("conductor", (1.0, 1.0, 1.0))
-    ior = {k: props.get(k, d) for k, d in (("int_ior", 1.5046), ("ext_ior", 1.000277))}
-    if not all(isinstance(v, float) for v in ior.values()):
-        raise ctx.error(node, "int_ior and ext_ior must be given as <float>")
+        material = props.get("material", "none", ("string",))
+        if props.has("eta") or material == "none":
+            if material != "none":
+                raise ctx.error(node, "give either eta and k or a material, not both (as in Mitsuba)")
+            eta, k = props.colour("eta", 0.0, unbounded=True), props.colour("k", 1.0, unbounded=True)
+        else:
+            try:
+                eta, k = (np.array(v) for v in named_conductor(material))
+            except KeyError as e:
+                raise ctx.error(props.values["material"], e.args[0]) from None
+        spec = props.colour("specular_reflectance", 1.0)
+        props.finish()
+        if np.any(spec < 0) or np.any(spec > 1):
+            raise ctx.error(node, f"specular_reflectance must lie in [0, 1], got {tuple(float(x) for x in spec)}")
+        return BSDF("conductor", _rgb(spec), eta=_rgb(eta), k=_rgb(k))
+    if kind == "plastic":
+        ior = {k: _ior(ctx, props, k, d) for k, d in (("int_ior", "polypropylene"), ("ext_ior", "air"))}
+        rho, spec = props.colour("diffuse_reflectance", 0.5, textured=True), props.colour("specular_reflectance", 1.0)
+        nonlinear = props.get("nonlinear", False, ("boolean",))
+        props.finish()
+        texture = None if isinstance(rho, np.ndarray) else rho
+        if texture is not None:     # its mean steers only which layer is sampled, not the estimate
+            rho = np.full(3, 0.5)
+        for name, value in (("diffuse_reflectance", rho), ("specular_reflectance", spec)):
+            if np.any(value < 0) or np.any(value > 1):
+                raise ctx.error(node, f"{name} must lie in [0, 1], got {_rgb(value)}")
+        if min(ior.values()) <= 0:
+            raise ctx.error(node, "indices of refraction must be positive")
+        return BSDF("plastic", _rgb(rho), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"], specular_reflectance=_rgb(spec),
+                    nonlinear=bool(nonlinear), texture=texture)
+    ior = {k: _ior(ctx, props, k, d) for k, d in (("int_ior", "bk7"), ("ext_ior", "air"))}
+    for name in ("specular_reflectance", "specular_transmittance"):
+        if np.any(props.colour(name, 1.0) != 1.0):
+            raise ctx.error(props.values[name], f"{name} other than 1 is unsupported")
+    props.finish()
     if min(ior.values()) <= 0:
         raise ctx.error(node, "indices of refraction must be positive")
     return BSDF("dielectric", (1.0, 1.0, 1.0), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"])
 
 
+def _texture(ctx: _Context, node: Node) -> Checkerboard | Bitmap:
+    kind = _check_type(ctx, node)
+    props = _Props(ctx, node, kind)
+    if kind == "bitmap":
+        return _bitmap(ctx, node, props)
+    colours = [props.colour(name, d) for name, d in (("color0", 0.4), ("color1", 0.2))]
+    m = props.get("to_uv", np.eye(4), ("transform",))
+    props.finish()
+    for name, c in zip(("color0", "color1"), colours):
+        if np.any(c < 0) or np.any(c > 1):
+            raise ctx.error(node, f"{name} must lie in [0, 1], got {_rgb(c)}")
+    return Checkerboard(_rgb(colours[0]), _rgb(colours[1]), _to_uv(m))
+
+
+def _to_uv(m: np.ndarray) -> tuple[tuple[float, float, float], ...]:
+    """A 4x4 transform acts on (u, v) through its x, y rows and columns and its translation (Mitsuba's
+    conversion of a 4x4 to a 3x3 transform)."""
+    return tuple(tuple(float(x) for x in row) for row in m[np.ix_([0, 1, 3], [0, 1, 3])])
+
+
+def _bitmap(ctx: _Context, node: Node, props: _Props) -> Bitmap:
+    filename = props.get("filename", None, ("string",))
+    raw = props.get("raw", False, ("boolean",))
+    choices = {"filter_type": ("bilinear", "nearest"), "wrap_mode": ("repeat", "clamp"), "format": ("auto",)}
+    modes = {}
+    for name, accepted in choices.items():
+        modes[name] = props.get(name, accepted[0], ("string",)).lower()
+        if modes[name] not in accepted:
+            raise ctx.error(props.values[name], f"{name} '{modes[name]}' unsupported; supported: {', '.join(accepted)}")
+    m = props.get("to_uv", np.eye(4), ("transform",))
+    props.ignore("accel")                  # how lookups are accelerated, not their values
+    props.finish()
+    if filename is None:
+        raise ctx.error(node, "bitmap needs a <string name=\"filename\">")
+    file = ctx.resolve(filename)
+    if not file.is_file():
+        raise ctx.error(node, f"image '{filename}' not found (looked in {', '.join(map(str, ctx.resolver))})")
+    try:
+        image = read_bitmap(file, raw)
+    except BitmapError as e:
+        raise ctx.error(node, str(e)) from None
+    return Bitmap(image, _to_uv(m), modes["filter_type"] == "bilinear", modes["wrap_mode"] == "repeat")
+
+
+def _rgb(value: np.ndarray) -> tuple[float, float, float]:
+    return tuple(float(x) for x in value)
+
+
+def _ior(ctx: _Context, props: _Props, name: str, default: str) -> float:
+    value = props.get(name, default, ("float", "integer", "string"))
+    if isinstance(value, str):
+        try:
+            return named_ior(value)
+        except KeyError as e:
+            raise ctx.error(props.values.get(name, props.node), e.args[0]) from None
+    return float(value)
+
+
+def _area_light(ctx: _Context, node: Node) -> tuple[float, float, float]:
+    kind = _check_type(ctx, node)
+    if kind != "area":
+        raise ctx.error(node, "a shape's emitter must be an 'area' light")
+    props = _Props(ctx, node, kind, emitter=True)
+    if props.has("to_world"):
+        raise ctx.error(props.values["to_world"], "an area light takes its shape's transform (Mitsuba refuses to_world)")
+    value = props.colour("radiance", 1.0)
+    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
+    props.finish()
+    if np.any(value < 0):
+        raise ctx.error(node, f"radiance must be non-negative, got {tuple(float(x) for x in value)}")
+    return tuple(float(x) for x in value)
+
+
+def _constant_light(ctx: _Context, node: Node) -> tuple[float, float, float]:
+    """Mitsuba's `constant` emitter: the same radiance arriving from every direction."""
+    props = _Props(ctx, node, _check_type(ctx, node), emitter=True)
+    value = props.colour("radiance", 1.0)
+    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
+    props.ignore("to_world")              # a uniform environment looks the same however it is turned
+    props.finish()
+    if np.any(value < 0):
+        raise ctx.error(node, f"radiance must be non-negative, got {tuple(float(x) for x in value)}")
+    return _rgb(value)
+
+
+def _point_light(ctx: _Context, node: Node) -> PointLight:
+    """Mitsuba's `point` emitter: at `position`, or at the translation of `to_world`."""
+    props = _Props(ctx, node, _check_type(ctx, node), emitter=True)
+    if props.has("position") and props.has("to_world"):
+        raise ctx.error(node, "give either position or to_world, not both (as in Mitsuba)")
+    position = props.get("position", None, ("point",))
+    if position is None:
+        position = props.get("to_world", np.eye(4), ("transform",))[:3, 3]
+    intensity = props.colour("intensity", 1.0)
+    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
+    props.finish()
+    if np.any(intensity < 0):
+        raise ctx.error(node, f"intensity must be non-negative, got {_rgb(intensity)}")
+    return PointLight(np.asarray(position, float), _rgb(intensity), node.attrib.get("id", f"point@{node.line}"))
+
+
+def _spot_light(ctx: _Context, node: Node) -> PointLight:
+    """Mitsuba's `spot` emitter: at to_world's origin, along its +z, with a linear falloff in angle."""
+    props = _Props(ctx, node, _check_type(ctx, node), emitter=True)
+    to_world = props.get("to_world", np.eye(4), ("transform",))
+    intensity = props.colour("intensity", 1.0)
+    cutoff = float(props.get("cutoff_angle", 20.0, ("float", "integer")))
+    beam = float(props.get("beam_width", cutoff * 3.0 / 4.0, ("float", "integer")))
+    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
+    props.finish()
+    linear = to_world[:3, :3]
+    if not np.allclose(linear.T @ linear, np.eye(3), atol=1e-5):
+        raise ctx.error(node, "a spot light's to_world must be a rotation and a translation (no scale or shear)")
+    if not 0 < beam < cutoff < 180:
+        raise ctx.error(node, f"need 0 < beam_width < cutoff_angle < 180 degrees, got {beam} and {cutoff}")
+    if np.any(intensity < 0):
+        raise ctx.error(node, f"intensity must be non-negative, got {_rgb(intensity)}")
+    axis = linear[:, 2] / np.linalg.norm(linear[:, 2])
+    return PointLight(to_world[:3, 3].copy(), _rgb(intensity), node.attrib.get("id", f"spot@{node.line}"),
+                      spot=(axis, cutoff, beam))
+
+
+def _directional_light(ctx: _Context, node: Node) -> DirectionalLight:
+    """Mitsuba's `directional` emitter: along `direction`, or along to_world's +z."""
+    props = _Props(ctx, node, _check_type(ctx, node), emitter=True)
+    if props.has("direction") and props.has("to_world"):
+        raise ctx.error(node, "give either direction or to_world, not both (as in Mitsuba)")
+    if props.has("direction"):
+        d = props.get("direction", tags=("vector",))
+    else:
+        linear = props.get("to_world", np.eye(4), ("transform",))[:3, :3]
+        if not np.allclose(linear.T @ linear, np.eye(3), atol=1e-5):
+            raise ctx.error(node, "a directional light's to_world must be a rotation (no scale or shear)")
+        d = linear[:, 2]
+    irradiance = props.colour("irradiance", 1.0)
+    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
+    props.finish()
+    if not np.any(d):
+        raise ctx.error(node, "the direction is zero")
+    if np.any(irradiance < 0):
+        raise ctx.error(node, f"irradiance must be non-negative, got {_rgb(irradiance)}")
+    return DirectionalLight(d / np.linalg.norm(d), _rgb(irradiance), node.attrib.get("id", f"directional@{node.line}"))
+
+
+def _envmap(ctx: _Context, node: Node) -> EnvironmentMap:
+    """Mitsuba's `envmap` from an OpenEXR file (tracer/envmap.py)."""
+    props = _Props(ctx, node, _check_type(ctx, node), emitter=True)
+    filename = props.get("filename", None, ("string",))
+    scale = props.get("scale", 1.0, ("float", "integer"))
+    to_world = props.get("to_world", np.eye(4), ("transform",))
+    props.ignore("sampling_weight", "mis_compensation")    # how often and where it is sampled, not the estimate
+    props.finish()
+    if filename is None:
+        raise ctx.error(node, "envmap needs a <string name=\"filename\"> (an OpenEXR image)")
+    if not filename.lower().endswith(".exr"):
+        raise ctx.error(props.values["filename"], f"envmap '{filename}': only OpenEXR images are supported")
+    linear = to_world[:3, :3]
+    if not np.allclose(linear.T @ linear, np.eye(3), atol=1e-5):
+        raise ctx.error(node, "an envmap's to_world must be a rotation (no scale or shear)")
+    if scale < 0:
+        raise ctx.error(node, f"scale must be non-negative, got {scale}")
+    file = ctx.resolve(filename)
+    if not file.is_file():
+        raise ctx.error(node, f"image '{filename}' not found (looked in {', '.join(map(str, ctx.resolver))})")
+    try:
+        image = read_exr_rgb(file)
+    except EnvmapError as e:
+        raise ctx.error(node, str(e)) from None
+    return EnvironmentMap(image * np.float32(scale), to_world, node.attrib.get("id", f"envmap@{node.line}"))
+
+
 def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
     kind = _check_type(ctx, node)
-    props = _properties(ctx, node, allowed_children=("bsdf", "ref", "emitter"))
-    bsdfs = [c for c in node.children if c.tag in ("bsdf", "ref")]
-    radiance = None
-    for em in (c for c in node.children if c.tag == "emitter"):
-        _check_type(ctx, em)
-        value = _properties(ctx, em).get("radiance", np.ones(3))
-        value = np.broadcast_to(np.asarray(value, float), 3)
-        if np.any(value < 0):
-            raise ctx.error(em, f"radiance must be non-negative, got {tuple(float(x) for x in value)}")
-        radiance = tuple(float(x) for x in value)
-    # Mitsuba's default: diffuse 0.5, but black on an emitter shape.
-    bsdf = _bsdf(ctx, bsdfs[0]) if bsdfs else BSDF("diffuse", (0.0,) * 3 if radiance else (0.5,) * 3)
-    to_world = props.get("to_world", np.eye(4))
+    props = _Props(ctx, node, kind)
+    emitters = props.children("emitter")
+    bsdfs = props.children("bsdf")
+    if len(emitters) > 1 or len(bsdfs) > 1:
+        raise ctx.error(node, "a shape holds at most one bsdf and one emitter")
+    radiance = ctx.attempt(ctx.built_once, emitters[0], lambda n: _area_light(ctx, n)) if emitters else None
+    bsdf = ctx.attempt(ctx.built_once, bsdfs[0], lambda n: _bsdf(ctx, n)) if bsdfs else None
+    if bsdf is None:  # Mitsuba's default: diffuse 0.5, but black on an emitter shape
+        bsdf = BSDF("diffuse", (0.0,) * 3 if emitters else (0.5,) * 3)
+    to_world = props.get("to_world", np.eye(4), ("transform",))
+    flip = props.get("flip_normals", False, ("boolean",))
+    props.ignore("silhouette_sampling_weight", "flip_tex_coords")   # differentiable rendering; textures
     name = node.attrib.get("id", f"{kind}@{node.line}")
-    if kind == "rectangle":
-        scene.rectangles.append(Rectangle(to_world, bsdf, radiance, name))
+    if kind in ("rectangle", "disk"):
+        props.finish()
+        if kind == "disk" and bsdf.texture is not None:
+            raise ctx.error(node, "a texture on a disk is unsupported; supported on rectangle and serialized shapes")
+        if flip:   # the normal is the image of local +z: mirror z, which leaves the shape in place
+            to_world = to_world @ np.diag([1.0, 1.0, -1.0, 1.0])
+        scene.rectangles.append(Rectangle(to_world, bsdf, radiance, name, disk=kind == "disk"))
+    elif kind == "cylinder":
+        scene.cylinders.append(_cylinder(ctx, node, props, to_world, flip, bsdf, bool(emitters), name))
     elif kind == "sphere":
-        if radiance is not None:
-            raise ctx.error(node, "area emitters are supported on rectangle and obj shapes only")
-        center = transform.apply_point(to_world, props.get("center", np.zeros(3)))[0]
-        radius = float(props.get("radius", 1.0)) * float(np.cbrt(abs(np.linalg.det(to_world[:3, :3]))))
+        center = props.get("center", np.zeros(3), ("point",))
+        radius = float(props.get("radius", 1.0, ("float", "integer")))
+        props.finish()
+        if flip:
+            raise ctx.error(props.values["flip_normals"], "flip_normals on a sphere is unsupported")
+        if bsdf.texture is not None:
+            raise ctx.error(node, "a texture on a sphere is unsupported; supported on rectangle and serialized shapes")
+        linear = to_world[:3, :3]
+        scale = float(np.cbrt(abs(np.linalg.det(linear))))
+        if not np.allclose(linear.T @ linear, scale * scale * np.eye(3), rtol=0, atol=1e-6 * scale * scale):
+            raise ctx.error(node, "a sphere's to_world must scale uniformly (no shear or non-uniform scale)")
+        center = transform.apply_point(to_world, center)[0]
+        radius *= scale
         if radius <= 0:
             raise ctx.error(node, f"sphere radius must be positive, got {radius}")
-        scene.spheres.append(Sphere(center, radius, bsdf, name))
+        scene.spheres.append(Sphere(center, radius, bsdf, name, radiance))
     else:
-        scene.meshes.append(_mesh(ctx, node, props, to_world, bsdf, radiance, name))
+        scene.meshes.append(_mesh(ctx, node, kind, props, to_world, flip, bsdf, radiance, name))
 
 
-def _mesh(ctx, node, props, to_world, bsdf, radiance, name) -> Mesh:
-    filename = props.get("filename")
+def _cylinder(ctx, node, props, to_world, flip, bsdf, emitter, name) -> Cylinder:
+    """Mitsuba's `cylinder`: the frame to_world * translate(p0) * (a frame along p1 - p0) * scale(r, r, |p1 - p0|)."""
+    p0 = props.get("p0", np.zeros(3), ("point",))
+    p1 = props.get("p1", np.array([0.0, 0.0, 1.0]), ("point",))
+    radius = float(props.get("radius", 1.0, ("float", "integer")))
+    props.finish()
+    if emitter:
+        raise ctx.error(node, "area emitters are supported on rectangle, disk, sphere and mesh shapes only")
+    if bsdf.texture is not None:
+        raise ctx.error(node, "a texture on a cylinder is unsupported; supported on rectangle and serialized shapes")
+    axis = p1 - p0
+    length = float(np.linalg.norm(axis))
+    if length == 0 or radius <= 0:
+        raise ctx.error(node, f"a cylinder needs p0 != p1 and a positive radius, got length {length}, radius {radius}")
+    z = axis / length
+    x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+    x /= np.linalg.norm(x)
+    frame = np.eye(4)
+    frame[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1) @ np.diag([radius, radius, length])
+    frame[:3, 3] = p0
+    m = to_world @ frame
+    cols = m[:3, :3].T
+    tol = 1e-6 * float(np.max(np.abs(cols)) ** 2)
+    if (abs(cols[0] @ cols[1]) > tol or abs(cols[0] @ cols[2]) > tol or abs(cols[1] @ cols[2]) > tol
+            or abs(cols[0] @ cols[0] - cols[1] @ cols[1]) > tol or np.linalg.det(m[:3, :3]) <= 0):
+        raise ctx.error(node, "a cylinder's to_world must keep it circular (equal scale across the axis, no shear "
+                              "or mirroring)")
+    return Cylinder(m, bsdf, flip, name)
+
+
+def _mesh(ctx, node, kind, props, to_world, flip, bsdf, radiance, name) -> Mesh:
+    filename = props.get("filename", None, ("string",))
+    face_normals = props.get("face_normals", False, ("boolean",))
+    shape_index = props.get("shape_index", 0, ("integer",)) if kind == "serialized" else 0
+    props.finish()
     if not filename:
-        raise ctx.error(node, "obj shape needs a <string name=\"filename\">")
-    file = (ctx.path.parent / filename)
+        raise ctx.error(node, f"{kind} shape needs a <string name=\"filename\">")
+    file = ctx.resolve(filename)
     if not file.is_file():
-        raise ctx.error(node, f"mesh file '{filename}' not found (looked in {file.parent})")
+        raise ctx.error(node, f"mesh file '{filename}' not found (looked in {', '.join(map(str, ctx.resolver))})")
+    if bsdf.texture is not None and kind != "serialized":
+        raise ctx.error(node, f"a texture on a {kind} shape is unsupported; supported on rectangle and serialized shapes")
+    uvs = None
     try:
-        vertices, faces, normals = read_obj(file)
+        if kind == "obj":
+            vertices, faces, normals = read_obj(file)
+        elif kind == "ply":
+            vertices, faces, normals = read_ply(file)
+        else:
+            if shape_index < 0:
+                raise ctx.error(node, f"shape_index must be non-negative, got {shape_index}")
+            vertices, faces, normals, uvs = read_serialized(file, shape_index)
     except MeshError as e:
         raise ctx.error(node, str(e)) from None
+    if flip and bsdf.texture is not None and uvs is None:
+        raise ctx.error(node, "flip_normals with a texture on a mesh without texture coordinates is unsupported")
     vertices = transform.apply_point(to_world, vertices)
-    if props.get("face_normals", False):
+    if flip:     # reversed winding flips the face normals
+        faces = faces[:, ::-1]
+    if face_normals:
         normals = None
     elif normals is None:
         normals = vertex_normals(vertices, faces)
     else:
-        normals = transform.apply_normal(to_world, normals)
-    return Mesh(vertices, faces, bsdf, normals, radiance, name)
+        normals = transform.apply_normal(to_world, normals) * (-1.0 if flip else 1.0)
+    return Mesh(vertices, faces, bsdf, normals, radiance, name, uvs)

@@ -29,6 +29,25 @@ def square_to_uniform_hemisphere(u1: Float, u2: Float) -> Array3f:
     return Array3f(r * c, r * s, z)
 
 
+def square_to_uniform_sphere(u1: Float, u2: Float) -> Array3f:
+    """Uniform direction on the unit sphere; density 1 / (4 pi)."""
+    z = 1.0 - 2.0 * u1
+    r = dr.safe_sqrt(1.0 - z * z)
+    s, c = dr.sincos(dr.two_pi * u2)
+    return Array3f(r * c, r * s, z)
+
+
+def square_to_uniform_disk_concentric(u1: Float, u2: Float) -> tuple[Float, Float]:
+    """Shirley and Chiu's concentric map of [0,1)^2 onto the unit disk: uniform in area."""
+    a, b = 2.0 * u1 - 1.0, 2.0 * u2 - 1.0
+    first = dr.abs(a) > dr.abs(b)
+    r = dr.select(first, a, b)
+    phi = dr.select(first, (dr.pi / 4) * (b / a), (dr.pi / 2) - (dr.pi / 4) * (a / b))
+    phi = dr.select((a == 0) & (b == 0), 0.0, phi)
+    s, c = dr.sincos(phi)
+    return r * c, r * s
+
+
 def uniform_hemisphere_pdf(cos_theta: Float) -> Float:
     return dr.select(cos_theta > 0, 1.0 / dr.two_pi, 0.0)
 

@@ -6,8 +6,8 @@ from dataclasses import dataclass
 import drjit as dr
 
 from ..bsdf import diffuse_brdf
-from ..geometry import SceneGeometry, Surface
-from ..jit import Array3f, Bool, Float
+from ..geometry import DIRECTIONAL_LIGHT, POINT_LIGHT, SceneGeometry, Surface
+from ..jit import INF, NO_PRIM, Array3f, Bool, Float
 
 
 def facing_normal(geo: SceneGeometry, surf: Surface, wi: Array3f) -> tuple[Array3f, Bool]:
@@ -31,20 +31,41 @@ class DirectSample:
 
 def sample_direct(geo: SceneGeometry, surf: Surface, ns: Array3f, albedo: Array3f,
                   u_select: Float, u1: Float, u2: Float, active: Bool) -> DirectSample:
-    """One shadow ray from a diffuse point to a point drawn uniformly on an area light (eq. 10)."""
+    """One shadow ray from a diffuse point to a point drawn uniformly on an area light (eq. 10), to a point
+    light (cos_y 1), or along a direction drawn towards the environment or of a directional light (at
+    infinity: distance 1 and cos_y 1 in the formulas, the shadow ray unbounded)."""
     ls = geo.sample_light(u_select, u1, u2)
     to_light = ls.y - surf.p
     dist2 = dr.squared_norm(to_light)
+    if geo.has_infinite_lights:
+        infinite = ls.prim == NO_PRIM if not geo.directionals else (
+            (ls.prim == NO_PRIM) | (ls.prim == DIRECTIONAL_LIGHT))
+        to_light = dr.select(infinite, ls.y, to_light)
+        dist2 = dr.select(infinite, 1.0, dist2)
     dist = dr.sqrt(dist2)
     w = to_light / dist
     cos_x = dr.dot(ns, w)
     cos_y = -dr.dot(ls.n, w)
+    if geo.has_infinite_lights:
+        cos_y = dr.select(infinite, 1.0, cos_y)
+        dist = dr.select(infinite, INF, dist)
+    if geo.points:           # a point light: intensity / d^2, no surface to be seen at an angle
+        cos_y = dr.select(ls.prim == POINT_LIGHT, 1.0, cos_y)
     lit = active & (cos_x > 0) & (cos_y > 0) & (dist2 > 0)
     occluded = geo.occluded(surf.p, w, dist, surf.prim, ls.prim, lit)   # traced only where it counts
     geometry_term = cos_x * cos_y / dist2
+    if geo.spots:            # a spot light's falloff in the direction of the shaded point (1 off spot lights)
+        cos_cutoff, cos_beam, cutoff, inv_width = ls.cone
+        cos_t = -dr.dot(ls.n, w)
+        falloff = dr.select(cos_t >= cos_beam, 1.0, (cutoff - dr.safe_acos(cos_t)) * inv_width)
+        geometry_term *= dr.select(cos_t > cos_cutoff, falloff, 0.0)
     value = diffuse_brdf(albedo) * ls.radiance * (geometry_term / ls.pdf_area)
     ok = lit & ~occluded
     pdf_light = ls.pdf_area * dist2 / dr.maximum(cos_y, 1e-30)
+    if geo.points:           # a delta light: no other strategy can find it, its MIS weight is 1
+        pdf_light = dr.select(ls.prim == POINT_LIGHT, INF, pdf_light)
+    if geo.directionals:
+        pdf_light = dr.select(ls.prim == DIRECTIONAL_LIGHT, INF, pdf_light)
     return DirectSample(dr.select(ok, value, Array3f(0.0)), pdf_light, cos_x, occluded)
 
 

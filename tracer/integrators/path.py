@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import drjit as dr
 
-from ..bsdf import dielectric_interface, reflect
-from ..geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneGeometry
+from ..bsdf import (dielectric_interface, fresnel_dielectric, plastic_diffuse, plastic_specular_probability,
+                    reflect)
+from ..geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, PLASTIC, SceneGeometry
 from ..jit import INF, NO_PRIM, PCG32, Array3f, Bool, Float, UInt32
 from ..sampling import square_to_cosine_hemisphere, to_world
 from .direct import facing_normal, power_heuristic, sample_direct
@@ -48,11 +49,13 @@ def _vertex(geo, rng, L, beta, eta, o, d, t_min, t_max, skip, prev_delta, prev_p
     rays += 1
     surf = geo.surface(hit)
     wi = -d
-    if geo.emitters:
+    if geo.has_lights:
         cos_l = dr.abs(dr.dot(surf.ns, d))
         le = geo.emitted(surf, wi)
         on_light = dr.max(le) > 0
         pdf_light = geo.light_pdf_area(surf) * dr.square(dr.select(on_light, hit.t, 0.0)) / dr.maximum(cos_l, 1e-30)
+        if geo.has_environment:              # a ray that hits nothing sees the environment
+            pdf_light = dr.select(surf.valid, pdf_light, geo.environment_pdf(d))
         w = dr.select(prev_delta, 1.0, power_heuristic(prev_pdf, pdf_light))
         L += dr.select(on_light, beta * le * w, Array3f(0.0))
     active_next = surf.valid & (depth + 1 < max_depth)
@@ -63,9 +66,9 @@ def _vertex(geo, rng, L, beta, eta, o, d, t_min, t_max, skip, prev_delta, prev_p
     if DIFFUSE in geo.kinds:
         is_diffuse = active_next & (kind == DIFFUSE)
         ns, lit = facing_normal(geo, surf, wi)
-        albedo = geo.albedo(surf.material, is_diffuse)
+        albedo = geo.albedo_at(surf, is_diffuse)
         is_diffuse &= lit
-        if geo.emitters:
+        if geo.has_lights:
             ds = sample_direct(geo, surf, ns, albedo, rng.next_float32(), rng.next_float32(), rng.next_float32(),
                                is_diffuse)
             w_nee = power_heuristic(ds.pdf_light, dr.maximum(ds.cos_x, 0.0) / dr.pi)
@@ -79,7 +82,7 @@ def _vertex(geo, rng, L, beta, eta, o, d, t_min, t_max, skip, prev_delta, prev_p
     if CONDUCTOR in geo.kinds:
         is_mirror = active_next & (kind == CONDUCTOR) & (dr.dot(surf.ns, wi) > 0)
         new_d = dr.select(is_mirror, reflect(d, surf.ns), new_d)
-        weight = dr.select(is_mirror, Array3f(1.0), weight)
+        weight = dr.select(is_mirror, geo.conductor_weight(surf.material, dr.dot(surf.ns, wi), is_mirror), weight)
         delta |= is_mirror
 
     if DIELECTRIC in geo.kinds:
@@ -92,5 +95,38 @@ def _vertex(geo, rng, L, beta, eta, o, d, t_min, t_max, skip, prev_delta, prev_p
         new_eta = dr.select(is_glass & ~choose_reflect, eta / dr.sqrt(scale), eta)
         delta |= is_glass
 
+    if PLASTIC in geo.kinds:
+        L, new_d, weight, pdf, delta, rays = _plastic(geo, rng, surf, wi, d, beta, L, active_next & (kind == PLASTIC),
+                                                      new_d, weight, pdf, delta, rays)
+
     beta = beta * weight
     return L, beta, new_eta, surf.p, new_d, surf.prim, delta, pdf, rays, active_next
+
+
+def _plastic(geo, rng, surf, wi, d, beta, L, is_plastic, new_d, weight, pdf, delta, rays):
+    """Mitsuba's smooth plastic (one-sided): a shadow ray for its diffuse layer, then the specular layer
+    (Fresnel-weighted mirror) or the diffuse layer (cosine-weighted), chosen with Mitsuba's probability."""
+    ns = surf.ns
+    cos_i = dr.dot(ns, wi)
+    is_plastic &= cos_i > 0
+    spec, (eta, inv_eta2, fdr_int, spec_weight, nonlinear) = geo.plastic(surf.material, is_plastic)
+    albedo = geo.albedo_at(surf, is_plastic)
+    f_i = fresnel_dielectric(cos_i, eta)[0]
+    p_spec = plastic_specular_probability(f_i, spec_weight)
+    if geo.has_lights:
+        ds = sample_direct(geo, surf, ns, Array3f(1.0), rng.next_float32(), rng.next_float32(), rng.next_float32(),
+                           is_plastic)
+        f_o = fresnel_dielectric(dr.maximum(ds.cos_x, 0.0), eta)[0]
+        value = ds.value * plastic_diffuse(albedo, fdr_int, nonlinear, inv_eta2, f_i, f_o)
+        w_nee = power_heuristic(ds.pdf_light, (1.0 - p_spec) * dr.maximum(ds.cos_x, 0.0) / dr.pi)
+        L += dr.select(is_plastic, beta * value * w_nee, Array3f(0.0))
+        rays += dr.select(is_plastic, 1, 0)
+    choose_spec = rng.next_float32() < p_spec
+    local = square_to_cosine_hemisphere(rng.next_float32(), rng.next_float32())
+    f_o = fresnel_dielectric(local.z, eta)[0]
+    diffuse_weight = plastic_diffuse(albedo, fdr_int, nonlinear, inv_eta2, f_i, f_o) / (1.0 - p_spec)
+    new_d = dr.select(is_plastic, dr.select(choose_spec, reflect(d, ns), to_world(local, ns)), new_d)
+    weight = dr.select(is_plastic, dr.select(choose_spec, spec * (f_i / p_spec), diffuse_weight), weight)
+    pdf = dr.select(is_plastic & ~choose_spec, (1.0 - p_spec) * local.z / dr.pi, pdf)
+    delta |= is_plastic & choose_spec
+    return L, new_d, weight, pdf, delta, rays

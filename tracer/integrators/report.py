@@ -17,6 +17,7 @@ from ..bsdf import dielectric_interface, reflect
 from ..geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneGeometry, Surface
 from ..jit import NO_PRIM, PCG32, Array3f, Bool, Float, UInt32
 from ..sampling import seeded_rng, square_to_cosine_hemisphere, square_to_uniform_hemisphere, to_world
+from ..scene import SceneError
 from .direct import facing_normal, sample_direct
 
 
@@ -59,6 +60,8 @@ def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int
                 radiance: Float, seed: int) -> tuple[Wavefront | None, int]:
     """Intersects one level (its rays end at path vertex `vertex`), adds its emission and eq. 10 estimates
     to `radiance` (flat RGB per camera sample) and returns the next level and the number of rays traced."""
+    if vertex == 1 and geo.scene.estimator_refusals("report"):
+        raise SceneError(geo.scene.estimator_refusals("report")[0])
     hit = geo.closest_hit(wave.o, wave.d, wave.t_min, wave.t_max, wave.skip)
     surf = geo.surface(hit)
     wi = -wave.d
@@ -72,7 +75,7 @@ def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int
     diffuse = surf.valid & lit & (kind == DIFFUSE)
     dr.eval(radiance, surf.p, surf.prim, surf.material, ns, kind, diffuse)
     rays = len(wave)
-    if geo.emitters and DIFFUSE in geo.kinds:
+    if geo.has_lights and DIFFUSE in geo.kinds:
         rays += _shadow_rays(geo, surf, ns, diffuse, wave, settings.direct, radiance, seed)
     return _spawn(geo, surf, ns, diffuse, kind, wave, vertex, max_depth, settings, seed), rays
 
@@ -159,8 +162,10 @@ def _spawn(geo, surf, ns, diffuse, kind, wave, vertex, max_depth, settings, seed
         factor = dr.select(is_diffuse, f * (1.0 / settings.indirect), factor)
     if CONDUCTOR in geo.kinds:
         is_mirror = k == CONDUCTOR
-        new_d = dr.select(is_mirror, reflect(d, dr.gather(Array3f, surf.ns, parent)), new_d)
-        factor = dr.select(is_mirror, Array3f(1.0), factor)
+        n_mirror = dr.gather(Array3f, surf.ns, parent)
+        new_d = dr.select(is_mirror, reflect(d, n_mirror), new_d)
+        weight_mirror = geo.conductor_weight(dr.gather(UInt32, surf.material, parent), -dr.dot(n_mirror, d), is_mirror)
+        factor = dr.select(is_mirror, weight_mirror, factor)
     if DIELECTRIC in geo.kinds:
         is_glass = k == DIELECTRIC
         int_ior, ext_ior = geo.iors(dr.gather(UInt32, surf.material, parent), is_glass)

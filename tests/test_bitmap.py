@@ -1,0 +1,74 @@
+"""Mitsuba's `bitmap` texture: texel values as Mitsuba 3.9.1 looks them up (sRGB decoded per texel before
+bilinear filtering, texel-centred, repeated or clamped, nearest; raw), and mitsuba_scenes/bitmap.xml rendered
+by the path estimator against Mitsuba: Welch's t-test per 4x4 block and channel, Bonferroni-corrected,
+family-wise false-positive rate ALPHA per comparison; the same test failing when the image is filtered before
+its sRGB decoding."""
+import numpy as np
+import pytest
+
+import tracer
+from tracer import bitmap
+from tracer.geometry import SceneGeometry
+from tracer.jit import Float
+from tracer.render import render
+from validation.stats import welch_test
+
+from .conftest import SCENES, mitsuba_passes
+from .test_xml_features import mi  # noqa: F401  (the fixture)
+from .test_xml_loader import write_scene
+
+ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+PASSES, SIZE, SPP = 16, 32, 64
+SCENE = "bitmap.xml"
+IMAGE = SCENES / "textures" / "tiles.png"
+
+
+@pytest.mark.parametrize("options", [{}, {"filter_type": "nearest"}, {"wrap_mode": "clamp"}, {"raw": True}])
+def test_lookup_is_mitsubas(tmp_path, options, mi):
+    props = "".join(f'<boolean name="{k}" value="true"/>' if v is True else f'<string name="{k}" value="{v}"/>'
+                    for k, v in options.items())
+    path = write_scene(tmp_path, f'<shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap" '
+                                 f'name="reflectance"><string name="filename" value="{IMAGE}"/>{props}</texture>'
+                                 '</bsdf></shape>')
+    geo = SceneGeometry(tracer.load_scene(path))
+    rng = np.random.default_rng(4)
+    uv = rng.uniform(-1.5, 2.5, (300, 2)).astype(np.float32)
+    material = geo.scene.bsdfs.index(geo.scene.rectangles[0].bsdf)
+    t = [Float(np.full(len(uv), x, np.float32)) for x in np.asarray(geo.mat_texture.numpy()).reshape(-1, 18)[material]]
+    ours = np.asarray(geo._bitmap(t, Float(uv[:, 0]), Float(uv[:, 1]), True).numpy()).T
+    tex = mi.load_dict({"type": "bitmap", "filename": str(IMAGE), **options})
+    ref = []
+    for u, v in uv:
+        si = mi.SurfaceInteraction3f()
+        si.uv = mi.Point2f(float(u), float(v))
+        ref.append(np.array(tex.eval(si)))
+    assert np.allclose(ours, np.array(ref), atol=2e-6)
+
+
+def tracer_passes(max_depth: int) -> np.ndarray:
+    scene = tracer.load_scene(SCENES / SCENE, width=SIZE, height=SIZE)
+    return np.stack([render(scene, "path", seed=9400 + k, max_depth=max_depth, spp=SPP).image
+                     for k in range(PASSES)])
+
+
+@pytest.mark.parametrize("max_depth", [2, 6])
+def test_bitmap_agrees_with_mitsuba(max_depth):
+    ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=max_depth)
+    result = welch_test(tracer_passes(max_depth), ref, alpha=ALPHA)
+    assert result.passed, result.summary()
+
+
+def test_fails_when_filtered_before_decoding(monkeypatch):
+    """Averaging sRGB values and decoding the average darkens every edge between texels."""
+    read = bitmap.read_bitmap
+
+    def blurred(path, raw):
+        encoded = read(path, raw=True).astype(np.float64)
+        blur = (encoded + np.roll(encoded, 1, 0) + np.roll(encoded, 1, 1) + np.roll(encoded, (1, 1), (0, 1))) / 4
+        return (blur if raw else bitmap.srgb_to_linear(blur)).astype(np.float32)
+
+    import tracer.mitsuba_xml as loader
+    monkeypatch.setattr(loader, "read_bitmap", blurred)
+    ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=2)
+    result = welch_test(tracer_passes(2), ref, alpha=ALPHA)
+    assert not result.passed, result.summary()

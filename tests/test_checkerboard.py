@@ -1,0 +1,64 @@
+"""Mitsuba's `checkerboard` texture as a diffuse reflectance, on a rectangle's texture coordinates, a
+serialized mesh's stored ones and a mesh's barycentric ones: mitsuba_scenes/checkerboard.xml rendered by
+the path estimator against Mitsuba (Welch's t-test per 4x4 block and channel, Bonferroni-corrected,
+family-wise false-positive rate ALPHA per comparison), the same test failing with u and v swapped;
+to_uv as Mitsuba reads it; textures where the tracer has no texture coordinates refused."""
+import numpy as np
+import pytest
+
+import tracer
+from tracer.geometry import SceneGeometry
+from tracer.render import render
+from validation.stats import welch_test
+
+from .conftest import SCENES, mitsuba_passes
+from .test_xml_features import mi, scene_errors  # noqa: F401  (mi: the fixture)
+from .test_xml_loader import write_scene
+
+ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+PASSES, SIZE, SPP = 16, 32, 64
+SCENE = "checkerboard.xml"
+
+
+def tracer_passes(max_depth: int) -> np.ndarray:
+    scene = tracer.load_scene(SCENES / SCENE, width=SIZE, height=SIZE)
+    return np.stack([render(scene, "path", seed=7000 + k, max_depth=max_depth, spp=SPP).image
+                     for k in range(PASSES)])
+
+
+@pytest.mark.parametrize("max_depth", [2, 6])
+def test_checkerboard_agrees_with_mitsuba(max_depth):
+    ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=max_depth)
+    result = welch_test(tracer_passes(max_depth), ref, alpha=ALPHA)
+    assert result.passed, result.summary()
+
+
+def test_fails_with_u_and_v_swapped(monkeypatch):
+    uv = SceneGeometry._uv
+    monkeypatch.setattr(SceneGeometry, "_uv", lambda self, hit, prim, valid: uv(self, hit, prim, valid)[::-1])
+    ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=2)
+    result = welch_test(tracer_passes(2), ref, alpha=ALPHA)
+    assert not result.passed, result.summary()
+
+
+def test_to_uv_as_mitsuba(mi):
+    scene = tracer.load_scene(SCENES / SCENE)
+    params = mi.traverse(mi.load_file(str(SCENES / SCENE)))
+    floor = next(r for r in scene.rectangles if r.name == "floor")
+    assert np.allclose(floor.bsdf.texture.to_uv, np.array(params["tiles.to_uv"].matrix), atol=1e-6)
+
+
+@pytest.mark.parametrize("shape, words", [
+    ('<shape type="sphere">{}</shape>', "texture on a sphere"),
+    ('<shape type="obj"><string name="filename" value="t.obj"/>{}</shape>', "texture on a obj shape"),
+])
+def test_texture_without_texture_coordinates_is_refused(tmp_path, shape, words):
+    (tmp_path / "t.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    bsdf = '<bsdf type="diffuse"><texture type="checkerboard" name="reflectance"/></bsdf>'
+    (error,) = scene_errors(write_scene(tmp_path, shape.format(bsdf)))
+    assert words in error
+
+
+def test_report_estimator_refuses_textures():
+    (line,) = tracer.load_scene(SCENES / SCENE).estimator_refusals("report")
+    assert "checkerboard" in line and "--estimator path" in line

@@ -1,0 +1,51 @@
+"""Mitsuba's `cylinder`: the open tube (p0, p1, radius, to_world), its outward normal, flip_normals, one-sided
+and two-sided materials on it, rays that start on it. mitsuba_scenes/cylinders.xml rendered by both
+estimators against Mitsuba: Welch's t-test per 4x4 block and channel, Bonferroni-corrected, family-wise
+false-positive rate ALPHA per comparison; the same test failing when flip_normals is ignored."""
+import numpy as np
+import pytest
+
+import tracer
+from tracer.render import render
+from validation.stats import welch_test
+
+from .conftest import SCENES, mitsuba_passes
+from .test_xml_features import scene_errors
+from .test_xml_loader import write_scene
+
+ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+PASSES, SIZE, SPP = 16, 32, 64
+REPORT = dict(spp=2, direct=4, indirect=4)
+SCENE = "cylinders.xml"
+
+
+def tracer_passes(estimator: str, max_depth: int, unflip: bool = False) -> np.ndarray:
+    scene = tracer.load_scene(SCENES / SCENE, width=SIZE, height=SIZE)
+    for c in scene.cylinders:
+        c.flipped = c.flipped and not unflip
+    opts = dict(REPORT) if estimator == "report" else dict(spp=SPP)
+    return np.stack([render(scene, estimator, seed=9700 + k, max_depth=max_depth, **opts).image
+                     for k in range(PASSES)])
+
+
+@pytest.mark.parametrize("estimator, max_depth", [("path", 6), ("report", 4)])
+def test_cylinders_agree_with_mitsuba(estimator, max_depth):
+    ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=max_depth)
+    result = welch_test(tracer_passes(estimator, max_depth), ref, alpha=ALPHA)
+    assert result.passed, result.summary()
+
+
+def test_fails_when_flip_normals_is_ignored():
+    ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=6)
+    result = welch_test(tracer_passes("path", 6, unflip=True), ref, alpha=ALPHA)
+    assert not result.passed, result.summary()
+
+
+@pytest.mark.parametrize("body, words", [
+    ('<shape type="cylinder"><transform name="to_world"><scale x="2"/></transform></shape>', "circular"),
+    ('<shape type="cylinder"><point name="p1" x="0" y="0" z="0"/></shape>', "p0 != p1"),
+    ('<shape type="cylinder"><emitter type="area"/></shape>', "area emitters"),
+])
+def test_bad_cylinder_is_refused(tmp_path, body, words):
+    (error,) = scene_errors(write_scene(tmp_path, body))
+    assert words in error

@@ -1,0 +1,48 @@
+"""Mitsuba's `disk`: the unit disk of a rectangle's plane (intersection masked by x^2 + y^2 <= 1, area
+pi |e1 x e2|, uniform light sampling by the concentric map), flip_normals. mitsuba_scenes/disks.xml (a disk
+light, an elliptical tilted two-sided disk, a mirror disk) rendered by both estimators against Mitsuba:
+Welch's t-test per 4x4 block and channel, Bonferroni-corrected, family-wise false-positive rate ALPHA per
+comparison; the same test failing when the disks are their bounding squares."""
+import numpy as np
+import pytest
+
+import tracer
+from tracer.render import render
+from tracer.scene import Rectangle
+from validation.stats import welch_test
+
+from .conftest import SCENES, mitsuba_passes
+
+ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+PASSES, SIZE, SPP = 16, 32, 64
+REPORT = dict(spp=2, direct=4, indirect=4)
+SCENE = "disks.xml"
+
+
+def tracer_passes(estimator: str, max_depth: int, squares: bool = False) -> np.ndarray:
+    scene = tracer.load_scene(SCENES / SCENE, width=SIZE, height=SIZE)
+    if squares:
+        scene.rectangles = [Rectangle(r.to_world, r.bsdf, r.radiance, r.name) for r in scene.rectangles]
+    opts = dict(REPORT) if estimator == "report" else dict(spp=SPP)
+    return np.stack([render(scene, estimator, seed=9500 + k, max_depth=max_depth, **opts).image
+                     for k in range(PASSES)])
+
+
+@pytest.mark.parametrize("estimator, max_depth", [("path", 6), ("report", 4)])
+def test_disks_agree_with_mitsuba(estimator, max_depth):
+    ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=max_depth)
+    result = welch_test(tracer_passes(estimator, max_depth), ref, alpha=ALPHA)
+    assert result.passed, result.summary()
+
+
+def test_fails_when_disks_are_squares():
+    ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=6)
+    result = welch_test(tracer_passes("path", 6, squares=True), ref, alpha=ALPHA)
+    assert not result.passed, result.summary()
+
+
+def test_disk_area_and_light():
+    s = tracer.load_scene(SCENES / SCENE)
+    light = next(r for r in s.rectangles if r.name == "light")
+    assert light.disk and light.area == pytest.approx(np.pi * 0.25 ** 2)
+    assert np.allclose(light.normal, [0, -1, 0], atol=1e-12)          # flipped to face the room

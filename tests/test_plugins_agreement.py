@@ -1,0 +1,45 @@
+"""The loader's features rendered, against Mitsuba on the same XML: mitsuba_scenes/mesh_formats.xml (an
+<include>d file of spectral reflectances, PLY and serialized meshes found through <path>, a top-level light
+used by <ref>, flip_normals, a two-sided wall, a camera given by its focal length). Welch's t-test per 4x4
+block and channel, Bonferroni-corrected, family-wise false-positive rate ALPHA per comparison, as in
+tests/test_agreement.py; and the same test failing when the light's spectrum is weighted by D65 as a
+reflectance's is."""
+import numpy as np
+import pytest
+
+import tracer
+from tracer import spectra
+from tracer.render import render
+from validation.stats import welch_test
+
+from .conftest import mitsuba_passes
+
+ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+PASSES, SIZE, SPP = 16, 32, 64
+SCENE = "mesh_formats.xml"
+REPORT = dict(spp=2, direct=4, indirect=4)
+
+
+def tracer_passes(estimator: str, max_depth: int) -> np.ndarray:
+    from .conftest import SCENES
+    scene = tracer.load_scene(SCENES / SCENE, width=SIZE, height=SIZE)
+    opts = dict(REPORT) if estimator == "report" else dict(spp=SPP)
+    return np.stack([render(scene, estimator, seed=3000 + k, max_depth=max_depth, **opts).image
+                     for k in range(PASSES)])
+
+
+@pytest.mark.parametrize("estimator, max_depth", [("path", 6), ("report", 3)])
+def test_mesh_formats_agree_with_mitsuba(estimator, max_depth):
+    ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=max_depth)
+    result = welch_test(tracer_passes(estimator, max_depth), ref, alpha=ALPHA)
+    assert result.passed, result.summary()
+
+
+def test_fails_when_radiance_is_weighted_by_d65_like_a_reflectance(monkeypatch):
+    def d65_everywhere(text, emitter, unbounded=False):      # every spectrum in the scene is a wavelength:value list
+        return spectra.list_to_srgb(*spectra.parse_pairs(text), bounded=not emitter, illuminant=True)
+
+    monkeypatch.setattr(spectra, "to_rgb", d65_everywhere)
+    ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=6)
+    result = welch_test(tracer_passes("path", 6), ref, alpha=ALPHA)
+    assert not result.passed, result.summary()

@@ -1,0 +1,61 @@
+"""Mitsuba's `point` emitter: shadow rays to it (intensity / d^2, a delta light: MIS weight 1), chosen
+uniformly among the lights. mitsuba_scenes/point_lights.xml (two point lights, one by position and one by
+to_world with a spectral intensity, and an area light) rendered by both estimators against Mitsuba:
+Welch's t-test per 4x4 block and channel, Bonferroni-corrected, family-wise false-positive rate ALPHA per
+comparison; the same test failing when a point light's intensity falls off as 1/d."""
+import drjit as dr
+import numpy as np
+import pytest
+
+import tracer
+from tracer.integrators import direct
+from tracer.render import render
+from validation.stats import welch_test
+
+from .conftest import SCENES, mitsuba_passes
+from .test_xml_features import scene_errors
+from .test_xml_loader import write_scene
+
+ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 4 comparisons: < 0.4% in all
+PASSES, SIZE, SPP = 16, 32, 64
+REPORT = dict(spp=2, direct=4, indirect=4)
+SCENE = "point_lights.xml"
+
+
+def tracer_passes(estimator: str, max_depth: int) -> np.ndarray:
+    scene = tracer.load_scene(SCENES / SCENE, width=SIZE, height=SIZE)
+    opts = dict(REPORT) if estimator == "report" else dict(spp=SPP)
+    return np.stack([render(scene, estimator, seed=8000 + k, max_depth=max_depth, **opts).image
+                     for k in range(PASSES)])
+
+
+@pytest.mark.parametrize("estimator, max_depth", [("path", 2), ("path", 5), ("report", 4)])
+def test_point_lights_agree_with_mitsuba(estimator, max_depth):
+    ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=max_depth)
+    result = welch_test(tracer_passes(estimator, max_depth), ref, alpha=ALPHA)
+    assert result.passed, result.summary()
+
+
+def test_fails_with_a_1_over_d_falloff(monkeypatch):
+    sample = direct.sample_direct
+
+    def one_over_d(geo, surf, ns, albedo, u_select, u1, u2, active):
+        ds = sample(geo, surf, ns, albedo, u_select, u1, u2, active)
+        ls = geo.sample_light(u_select, u1, u2)
+        d = dr.norm(ls.y - surf.p)
+        ds.value = dr.select(ls.prim == direct.POINT_LIGHT, ds.value * d, ds.value)
+        return ds
+
+    monkeypatch.setattr(direct, "sample_direct", one_over_d)
+    from tracer.integrators import path
+    monkeypatch.setattr(path, "sample_direct", one_over_d)
+    ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=2)
+    result = welch_test(tracer_passes("path", 2), ref, alpha=ALPHA)
+    assert not result.passed, result.summary()
+
+
+def test_position_and_to_world_together_are_refused(tmp_path):
+    path = write_scene(tmp_path, '<emitter type="point"><point name="position" x="1" y="2" z="3"/>'
+                                 '<transform name="to_world"><translate x="1"/></transform></emitter>')
+    (error,) = scene_errors(path)
+    assert "either position or to_world" in error

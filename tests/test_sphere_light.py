@@ -1,0 +1,48 @@
+"""Area lights on spheres (Mitsuba's `area` emitter on a `sphere`): emission outward, shadow rays to points
+uniform on the sphere (pdf 1 / (4 pi r^2), back-facing ones unlit), MIS with BSDF sampling.
+mitsuba_scenes/sphere_lights.xml rendered by both estimators against Mitsuba: Welch's t-test per 4x4 block
+and channel, Bonferroni-corrected, family-wise false-positive rate ALPHA per comparison; the same test
+failing when the light's area is taken as pi r^2."""
+import numpy as np
+import pytest
+
+import tracer
+from tracer.render import render
+from tracer.scene import Sphere
+from validation.stats import welch_test
+
+from .conftest import SCENES, mitsuba_passes
+
+ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+PASSES, SIZE, SPP = 16, 32, 64
+REPORT = dict(spp=2, direct=4, indirect=4)
+SCENE = "sphere_lights.xml"
+
+
+def tracer_passes(estimator: str, max_depth: int) -> np.ndarray:
+    scene = tracer.load_scene(SCENES / SCENE, width=SIZE, height=SIZE)
+    opts = dict(REPORT) if estimator == "report" else dict(spp=SPP)
+    return np.stack([render(scene, estimator, seed=9900 + k, max_depth=max_depth, **opts).image
+                     for k in range(PASSES)])
+
+
+@pytest.mark.parametrize("estimator, max_depth", [("path", 6), ("report", 4)])
+def test_sphere_lights_agree_with_mitsuba(estimator, max_depth):
+    ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=max_depth)
+    result = welch_test(tracer_passes(estimator, max_depth), ref, alpha=ALPHA)
+    assert result.passed, result.summary()
+
+
+def test_fails_with_the_wrong_area(monkeypatch):
+    monkeypatch.setattr(Sphere, "area", property(lambda self: np.pi * self.radius ** 2))
+    ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=6)
+    result = welch_test(tracer_passes("path", 6), ref, alpha=ALPHA)
+    assert not result.passed, result.summary()
+
+
+def test_sphere_lights_are_black_spheres():
+    s = tracer.load_scene(SCENES / SCENE)
+    lights = [x for x in s.spheres if x.radiance is not None]
+    assert [x.name for x in s.emitters] == ["warm_light", "cool_light"] == [x.name for x in lights]
+    assert all(x.bsdf.reflectance == (0.0, 0.0, 0.0) for x in lights)
+    assert lights[1].radius == pytest.approx(0.08) and np.allclose(lights[1].center, [-0.5, 0.3, 0.5])

@@ -1,0 +1,43 @@
+"""Mitsuba's `bitmap` texture on the host: the image as linear RGB (the kernel lookup is in geometry.py).
+
+As Mitsuba 3.9.1's RGB variants: an 8-bit image (PNG, JPEG, BMP, ...; read with Pillow) is sRGB-encoded
+unless `raw`, and each texel is decoded to linear before filtering; an OpenEXR image is linear. Alpha is
+dropped, a grey image is grey in all three channels. The lookup at texture coordinates (u, v) is
+texel-centred (x = u W - 1/2, y = v H - 1/2, row 0 at v = 0), bilinear or nearest, wrapped by repeating or
+clamping.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .envmap import EnvmapError, read_exr_rgb
+
+
+class BitmapError(ValueError):
+    pass
+
+
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """The sRGB transfer function's inverse (IEC 61966-2-1), on values in [0, 1]."""
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def read_bitmap(path: Path, raw: bool) -> np.ndarray:
+    """(H, W, 3) float32 linear RGB."""
+    if path.suffix.lower() == ".exr":
+        try:
+            return read_exr_rgb(path)
+        except EnvmapError as e:
+            raise BitmapError(str(e)) from None
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            if im.mode not in ("RGB", "RGBA", "L", "LA", "P"):
+                raise BitmapError(f"{path}: pixel format {im.mode} unsupported; supported: 8-bit RGB, RGBA, grey")
+            pixels = np.asarray(im.convert("RGB"), np.float64) / 255.0
+    except (OSError, UnidentifiedImageError) as e:
+        raise BitmapError(f"{path}: not a readable image ({e})") from None
+    return (pixels if raw else srgb_to_linear(pixels)).astype(np.float32)
