@@ -10,7 +10,7 @@ import pytest
 import tracer
 from tracer import SceneError
 from tracer.geometry import SceneGeometry
-from tracer.render import render
+from tracer.rendering import render
 from validation.stats import welch_test
 
 from .conftest import SCENES, mitsuba_passes

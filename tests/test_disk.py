@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import tracer
-from tracer.render import render
+from tracer.rendering import render
 from tracer.scene import Rectangle
 from validation.stats import welch_test
 

@@ -9,7 +9,7 @@ import pytest
 import tracer
 from tracer import bsdf
 from tracer.integrators import path
-from tracer.render import render
+from tracer.rendering import render
 from validation.stats import welch_test
 
 from .conftest import SCENES, mitsuba_passes
