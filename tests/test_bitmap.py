@@ -11,13 +11,13 @@ from tracer import bitmap
 from tracer.geometry import SceneGeometry
 from tracer.jit import Float
 from tracer.rendering import render
-from validation.stats import welch_test
+from validation.stats import compare_passes
 
 from .conftest import SCENES, mitsuba_passes
 from .test_xml_features import mi  # noqa: F401  (the fixture)
 from .test_xml_loader import write_scene
 
-ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
 PASSES, SIZE, SPP = 16, 32, 64
 SCENE = "bitmap.xml"
 IMAGE = SCENES / "textures" / "tiles.png"
@@ -51,13 +51,15 @@ def tracer_passes(max_depth: int) -> np.ndarray:
                      for k in range(PASSES)])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("max_depth", [2, 6])
 def test_bitmap_agrees_with_mitsuba(max_depth):
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=max_depth)
-    result = welch_test(tracer_passes(max_depth), ref, alpha=ALPHA)
-    assert result.passed, result.summary()
+    result = compare_passes(tracer_passes(max_depth), ref, ALPHA)
+    assert result.verdict == "agree", result.summary()
 
 
+@pytest.mark.slow
 def test_fails_when_filtered_before_decoding(monkeypatch):
     """Averaging sRGB values and decoding the average darkens every edge between texels."""
     read = bitmap.read_bitmap
@@ -70,5 +72,5 @@ def test_fails_when_filtered_before_decoding(monkeypatch):
     import tracer.mitsuba_xml as loader
     monkeypatch.setattr(loader, "read_bitmap", blurred)
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=2)
-    result = welch_test(tracer_passes(2), ref, alpha=ALPHA)
-    assert not result.passed, result.summary()
+    result = compare_passes(tracer_passes(2), ref, ALPHA)
+    assert result.verdict == "disagree", result.summary()

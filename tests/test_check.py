@@ -155,3 +155,12 @@ def test_a_bug_shows_its_traceback(monkeypatch, capsys):
     with pytest.raises(ZeroDivisionError):
         cli.main(["check", str(SCENES / "hexagon_room.xml")])
     assert "internal error" in capsys.readouterr().err
+
+
+def test_float32_round_off_is_not_a_disagreement_but_a_real_offset_is():
+    """A constant sky seen directly: no variance; a difference of 5e-7 is float32 arithmetic, 1e-3 is not."""
+    sky = np.full((16, 8, 8, 3), 0.225)
+    assert compare(sky * (1 + 5e-7), sky, ALPHA).verdict == "agree"
+    assert compare(sky * (1 + 1e-3), sky, ALPHA).verdict == "disagree"
+    noisy = normal_passes(9, 0.225, 1e-9)
+    assert compare(noisy * (1 + 5e-7), noisy, ALPHA).verdict == "agree"

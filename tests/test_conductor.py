@@ -10,13 +10,13 @@ from tracer import bsdf, geometry
 from tracer.ior import CONDUCTORS
 from tracer.jit import Array3f, Float
 from tracer.rendering import render
-from validation.stats import welch_test
+from validation.stats import compare_passes
 
 from .conftest import SCENES, mitsuba_passes
 from .test_xml_features import mi  # noqa: F401  (the fixture)
 from .test_xml_loader import write_scene
 
-ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
 PASSES, SIZE, SPP = 16, 32, 64
 REPORT = dict(spp=2, direct=4, indirect=4)
 
@@ -65,15 +65,17 @@ def tracer_passes(estimator: str, max_depth: int) -> np.ndarray:
                      for k in range(PASSES)])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("estimator, max_depth", [("path", 6), ("report", 4)])
 def test_conductors_agree_with_mitsuba(estimator, max_depth):
     ref = mitsuba_passes("conductors.xml", PASSES, SPP, width=SIZE, height=SIZE, max_depth=max_depth)
-    result = welch_test(tracer_passes(estimator, max_depth), ref, alpha=ALPHA)
-    assert result.passed, result.summary()
+    result = compare_passes(tracer_passes(estimator, max_depth), ref, ALPHA)
+    assert result.verdict == "agree", result.summary()
 
 
+@pytest.mark.slow
 def test_fails_on_perfect_mirrors(monkeypatch):
     monkeypatch.setattr(geometry, "fresnel_conductor", lambda cos_i, eta, k: Array3f(1.0))
     ref = mitsuba_passes("conductors.xml", PASSES, SPP, width=SIZE, height=SIZE, max_depth=6)
-    result = welch_test(tracer_passes("path", 6), ref, alpha=ALPHA)
-    assert not result.passed, result.summary()
+    result = compare_passes(tracer_passes("path", 6), ref, ALPHA)
+    assert result.verdict == "disagree", result.summary()

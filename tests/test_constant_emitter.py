@@ -11,13 +11,13 @@ import tracer
 from tracer import SceneError
 from tracer.geometry import SceneGeometry
 from tracer.rendering import render
-from validation.stats import welch_test
+from validation.stats import compare_passes
 
 from .conftest import SCENES, mitsuba_passes
 from .test_xml_features import scene_errors
 from .test_xml_loader import write_scene
 
-ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
 PASSES, SIZE, SPP = 16, 32, 64
 SCENE = "constant_environment.xml"
 
@@ -28,18 +28,20 @@ def tracer_passes(max_depth: int) -> np.ndarray:
                      for k in range(PASSES)])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("max_depth", [2, 5])
 def test_constant_environment_agrees_with_mitsuba(max_depth):
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=max_depth)
-    result = welch_test(tracer_passes(max_depth), ref, alpha=ALPHA)
-    assert result.passed, result.summary()
+    result = compare_passes(tracer_passes(max_depth), ref, ALPHA)
+    assert result.verdict == "agree", result.summary()
 
 
+@pytest.mark.slow
 def test_fails_when_the_light_choice_is_forgotten(monkeypatch):
     monkeypatch.setattr(SceneGeometry, "environment_pdf", lambda self, d: 1.0 / (4.0 * np.pi))
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=2)
-    result = welch_test(tracer_passes(2), ref, alpha=ALPHA)
-    assert not result.passed, result.summary()
+    result = compare_passes(tracer_passes(2), ref, ALPHA)
+    assert result.verdict == "disagree", result.summary()
 
 
 def test_report_estimator_refuses_the_environment():

@@ -8,13 +8,13 @@ import pytest
 
 import tracer
 from tracer.rendering import render
-from validation.stats import welch_test
+from validation.stats import compare_passes
 
 from .conftest import SCENES, mitsuba_passes
 from .test_xml_features import scene_errors
 from .test_xml_loader import write_scene
 
-ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
 PASSES, SIZE, SPP = 16, 32, 64
 REPORT = dict(spp=2, direct=4, indirect=4)
 SCENE = "directional_lights.xml"
@@ -29,17 +29,19 @@ def tracer_passes(estimator: str, max_depth: int, reverse: bool = False) -> np.n
                      for k in range(PASSES)])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("estimator, max_depth", [("path", 5), ("report", 3)])
 def test_directional_lights_agree_with_mitsuba(estimator, max_depth):
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=max_depth)
-    result = welch_test(tracer_passes(estimator, max_depth), ref, alpha=ALPHA)
-    assert result.passed, result.summary()
+    result = compare_passes(tracer_passes(estimator, max_depth), ref, ALPHA)
+    assert result.verdict == "agree", result.summary()
 
 
+@pytest.mark.slow
 def test_fails_with_the_light_reversed():
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=2)
-    result = welch_test(tracer_passes("path", 2, reverse=True), ref, alpha=ALPHA)
-    assert not result.passed, result.summary()
+    result = compare_passes(tracer_passes("path", 2, reverse=True), ref, ALPHA)
+    assert result.verdict == "disagree", result.summary()
 
 
 def test_direction_and_to_world_together_are_refused(tmp_path):

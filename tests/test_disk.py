@@ -9,11 +9,11 @@ import pytest
 import tracer
 from tracer.rendering import render
 from tracer.scene import Rectangle
-from validation.stats import welch_test
+from validation.stats import compare_passes
 
 from .conftest import SCENES, mitsuba_passes
 
-ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
 PASSES, SIZE, SPP = 16, 32, 64
 REPORT = dict(spp=2, direct=4, indirect=4)
 SCENE = "disks.xml"
@@ -28,17 +28,19 @@ def tracer_passes(estimator: str, max_depth: int, squares: bool = False) -> np.n
                      for k in range(PASSES)])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("estimator, max_depth", [("path", 6), ("report", 4)])
 def test_disks_agree_with_mitsuba(estimator, max_depth):
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=max_depth)
-    result = welch_test(tracer_passes(estimator, max_depth), ref, alpha=ALPHA)
-    assert result.passed, result.summary()
+    result = compare_passes(tracer_passes(estimator, max_depth), ref, ALPHA)
+    assert result.verdict == "agree", result.summary()
 
 
+@pytest.mark.slow
 def test_fails_when_disks_are_squares():
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=6)
-    result = welch_test(tracer_passes("path", 6, squares=True), ref, alpha=ALPHA)
-    assert not result.passed, result.summary()
+    result = compare_passes(tracer_passes("path", 6, squares=True), ref, ALPHA)
+    assert result.verdict == "disagree", result.summary()
 
 
 def test_disk_area_and_light():

@@ -10,12 +10,12 @@ import tracer
 from tracer import bsdf
 from tracer.integrators import path
 from tracer.rendering import render
-from validation.stats import welch_test
+from validation.stats import compare_passes
 
 from .conftest import SCENES, mitsuba_passes
 from .test_xml_features import mi  # noqa: F401  (the fixture)
 
-ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
 PASSES, SIZE, SPP = 16, 32, 64
 SCENE = "plastic.xml"
 
@@ -26,20 +26,22 @@ def tracer_passes(max_depth: int) -> np.ndarray:
                      for k in range(PASSES)])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("max_depth", [2, 5])
 def test_plastic_agrees_with_mitsuba(max_depth):
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=max_depth)
-    result = welch_test(tracer_passes(max_depth), ref, alpha=ALPHA)
-    assert result.passed, result.summary()
+    result = compare_passes(tracer_passes(max_depth), ref, ALPHA)
+    assert result.verdict == "agree", result.summary()
 
 
+@pytest.mark.slow
 def test_fails_without_the_interface_transmission(monkeypatch):
     diffuse = bsdf.plastic_diffuse
     monkeypatch.setattr(path, "plastic_diffuse",
                         lambda albedo, fdr, nl, inv_eta2, f_i, f_o: diffuse(albedo, fdr, nl, inv_eta2, 0.0, 0.0))
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=2)
-    result = welch_test(tracer_passes(2), ref, alpha=ALPHA)
-    assert not result.passed, result.summary()
+    result = compare_passes(tracer_passes(2), ref, ALPHA)
+    assert result.verdict == "disagree", result.summary()
 
 
 @pytest.mark.parametrize("eta", [1 / 1.49, 1.49, 0.8, 2.4, 1.0001])

@@ -10,11 +10,11 @@ import pytest
 import tracer
 from tracer import spectra
 from tracer.rendering import render
-from validation.stats import welch_test
+from validation.stats import compare_passes
 
 from .conftest import mitsuba_passes
 
-ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
 PASSES, SIZE, SPP = 16, 32, 64
 SCENE = "mesh_formats.xml"
 REPORT = dict(spp=2, direct=4, indirect=4)
@@ -28,18 +28,20 @@ def tracer_passes(estimator: str, max_depth: int) -> np.ndarray:
                      for k in range(PASSES)])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("estimator, max_depth", [("path", 6), ("report", 3)])
 def test_mesh_formats_agree_with_mitsuba(estimator, max_depth):
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=max_depth)
-    result = welch_test(tracer_passes(estimator, max_depth), ref, alpha=ALPHA)
-    assert result.passed, result.summary()
+    result = compare_passes(tracer_passes(estimator, max_depth), ref, ALPHA)
+    assert result.verdict == "agree", result.summary()
 
 
+@pytest.mark.slow
 def test_fails_when_radiance_is_weighted_by_d65_like_a_reflectance(monkeypatch):
     def d65_everywhere(text, emitter, unbounded=False):      # every spectrum in the scene is a wavelength:value list
         return spectra.list_to_srgb(*spectra.parse_pairs(text), bounded=not emitter, illuminant=True)
 
     monkeypatch.setattr(spectra, "to_rgb", d65_everywhere)
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=6)
-    result = welch_test(tracer_passes("path", 6), ref, alpha=ALPHA)
-    assert not result.passed, result.summary()
+    result = compare_passes(tracer_passes("path", 6), ref, ALPHA)
+    assert result.verdict == "disagree", result.summary()

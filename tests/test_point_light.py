@@ -10,13 +10,13 @@ import pytest
 import tracer
 from tracer.integrators import direct
 from tracer.rendering import render
-from validation.stats import welch_test
+from validation.stats import compare_passes
 
 from .conftest import SCENES, mitsuba_passes
 from .test_xml_features import scene_errors
 from .test_xml_loader import write_scene
 
-ALPHA = 1e-3     # family-wise false-positive rate of one comparison; 4 comparisons: < 0.4% in all
+from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 4 comparisons: < 0.4% in all
 PASSES, SIZE, SPP = 16, 32, 64
 REPORT = dict(spp=2, direct=4, indirect=4)
 SCENE = "point_lights.xml"
@@ -29,13 +29,15 @@ def tracer_passes(estimator: str, max_depth: int) -> np.ndarray:
                      for k in range(PASSES)])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("estimator, max_depth", [("path", 2), ("path", 5), ("report", 4)])
 def test_point_lights_agree_with_mitsuba(estimator, max_depth):
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=max_depth)
-    result = welch_test(tracer_passes(estimator, max_depth), ref, alpha=ALPHA)
-    assert result.passed, result.summary()
+    result = compare_passes(tracer_passes(estimator, max_depth), ref, ALPHA)
+    assert result.verdict == "agree", result.summary()
 
 
+@pytest.mark.slow
 def test_fails_with_a_1_over_d_falloff(monkeypatch):
     sample = direct.sample_direct
 
@@ -50,8 +52,8 @@ def test_fails_with_a_1_over_d_falloff(monkeypatch):
     from tracer.integrators import path
     monkeypatch.setattr(path, "sample_direct", one_over_d)
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=2)
-    result = welch_test(tracer_passes("path", 2), ref, alpha=ALPHA)
-    assert not result.passed, result.summary()
+    result = compare_passes(tracer_passes("path", 2), ref, ALPHA)
+    assert result.verdict == "disagree", result.summary()
 
 
 def test_position_and_to_world_together_are_refused(tmp_path):

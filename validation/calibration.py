@@ -203,7 +203,9 @@ def report(out: Path, repetitions: int = 12) -> Path:
         "pass means are skewed alike and their difference is symmetric, so the test keeps its level (Jung, "
         "Hanika and Dachsbacher 2020 compare renderers with Welch's test at low, equal sample counts).",
         "- **Welch's t-test** per 4 x 4 block and channel and on the image mean per channel, Bonferroni-corrected "
-        "(half of alpha to the blocks, half to the image means), family-wise alpha 1e-3 per check.",
+        "(half of alpha to the blocks, half to the image means), family-wise alpha 1e-3 per check. Differences "
+        "below 1e-5 of a block's mean are not resolved: that is float32 round-off (a constant sky seen directly "
+        "has no variance, and two renderers' lookups differ by 5e-7).",
         "- **Inconclusive, not disagree**, where the normal approximation cannot be trusted: a rejected block "
         "whose passes hold an outlier on either side (Grubbs' test at 1%) or whose mean rests on fewer than 4 "
         "non-black passes. The check then repeats at 4x the samples per pass (up to 1024) and, if still "

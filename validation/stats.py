@@ -6,7 +6,8 @@ Two tests on the same blocks (the passes averaged over block x block tiles, per 
   reports/calibration.md). Welch's t-test per block and channel (Welch 1947; for renderers: Jung,
   Hanika and Dachsbacher, JCGT 9(2), 2020), Bonferroni-corrected, on an equal-budget design: both sides
   have the same passes and samples per pass, so the skew of the two pass means cancels in their
-  difference; the image means per channel are tested beside the blocks. A block whose passes hold an outlier on either side (Grubbs' test, Grubbs 1950) or whose
+  difference; the image means per channel are tested beside the blocks. Differences below
+  FLOAT_RESOLUTION of a block's mean (float32 round-off) are not resolved. A block whose passes hold an outlier on either side (Grubbs' test, Grubbs 1950) or whose
   mean rests on fewer than MIN_NONZERO non-black passes is decided by a few rare samples; the normal
   approximation is not trusted there, and a rejection there makes the verdict `inconclusive`, never
   `disagree`.
@@ -23,6 +24,7 @@ from scipy import stats
 
 GRUBBS_ALPHA = 0.01   # level of the per-side outlier test that marks a block as untrusted
 MIN_NONZERO = 4       # a block's mean must rest on at least this many non-black passes of each side
+FLOAT_RESOLUTION = 1e-5   # relative differences below this (about 100 float32 steps) are not resolved
 VERDICTS = ("agree", "disagree", "inconclusive")
 
 
@@ -129,8 +131,15 @@ def _welch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         df = se2 ** 2 / (va ** 2 / (ka - 1) + vb ** 2 / (kb - 1))
         p = 2 * stats.t.sf(np.abs(t), df)
     exact = se2 == 0
-    equal = np.abs(diff) <= 1e-6 * np.maximum(np.abs(ma), np.abs(mb))
+    equal = resolved(diff, ma, mb) == 0
     return np.where(exact, np.where(equal, 0.0, np.inf), t), np.where(exact, np.where(equal, 1.0, 0.0), p)
+
+
+def resolved(diff: np.ndarray, ma: np.ndarray, mb: np.ndarray) -> np.ndarray:
+    """Whether a difference of means exceeds FLOAT_RESOLUTION of the larger: below, two renderers' float32
+    arithmetic (texture lookups, summation orders) differs, not their estimates (a constant sky seen
+    directly has no variance, and a difference of 5e-7 would otherwise be rejected)."""
+    return np.abs(diff) > FLOAT_RESOLUTION * np.maximum(np.abs(ma), np.abs(mb))
 
 
 def compare(a: np.ndarray, b: np.ndarray, alpha: float) -> Comparison:
@@ -142,11 +151,11 @@ def compare(a: np.ndarray, b: np.ndarray, alpha: float) -> Comparison:
     if len(a) < 3 or len(b) < 3:
         raise ValueError("the comparison needs at least three passes of each renderer")
     t, p = _welch(a, b)
-    rejected = p < alpha / 2 / p.size
+    rejected = (p < alpha / 2 / p.size) & resolved(a.mean(0) - b.mean(0), a.mean(0), b.mean(0))
     trusted = ~(rare_sample_blocks(a) | rare_sample_blocks(b))
     ga, gb = a.mean((1, 2)), b.mean((1, 2))          # (K, 3) image means of each pass
     _, p_image = _welch(ga, gb)
-    image_rejected = p_image < alpha / 2 / p_image.size
+    image_rejected = (p_image < alpha / 2 / p_image.size) & resolved(ga.mean(0) - gb.mean(0), ga.mean(0), gb.mean(0))
     image_trusted = ~(rare_sample_blocks(ga) | rare_sample_blocks(gb))
     n_trusted = int((rejected & trusted).sum() + (image_rejected & image_trusted).sum())
     n_untrusted = int((rejected & ~trusted).sum() + (image_rejected & ~image_trusted).sum())
@@ -155,3 +164,8 @@ def compare(a: np.ndarray, b: np.ndarray, alpha: float) -> Comparison:
     return Comparison(verdict, alpha, p.size, n_trusted, n_untrusted, int((~trusted).sum()), float(p.min()),
                       tuple(int(i) for i in worst), float(t[worst]), float(a.mean()), float(b.mean()),
                       p, rejected, trusted, p_image, image_rejected)
+
+
+def compare_passes(a: np.ndarray, b: np.ndarray, alpha: float, block: int = 4) -> Comparison:
+    """`compare` on (K, H, W, 3) passes, averaged over block x block tiles first."""
+    return compare(block_means(a, block), block_means(b, block), alpha)
