@@ -20,7 +20,7 @@ from .integrators.report import ReportSettings, Wavefront, trace_level
 from .jit import BACKEND, NO_PRIM, PRECISION, Array3f, Bool, Float, UInt32, opaque_u32
 from .plan import PATH_CHUNK, Plan, plan_render
 from .sampling import seeded_rng
-from .scene import Scene
+from .scene import Scene, SceneError
 
 ESTIMATORS = ("path", "report")
 HEMISPHERES = ("cosine", "uniform")
@@ -76,6 +76,9 @@ def render(scene: Scene | str | Path, estimator: str = "path", spp: int | None =
         raise SettingsError(f"scene must be a Scene (tracer.load_scene) or a scene file's path, "
                             f"got {type(scene).__name__}")
     estimator, spp, seed, max_depth = check_settings(scene, estimator, spp, seed, max_depth)
+    refusals = scene.estimator_refusals(estimator)
+    if refusals:
+        raise SceneError("\n".join(refusals))
     report = report_settings(estimator, max_depth, direct, indirect, hemisphere)
     rfilter = check_rfilter(scene.camera.rfilter if rfilter is None else rfilter)
     if time_limit is not None and (isinstance(time_limit, bool) or not isinstance(time_limit, numbers.Real)

@@ -17,7 +17,6 @@ from ..bsdf import dielectric_interface, reflect
 from ..geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneGeometry, Surface
 from ..jit import NO_PRIM, PCG32, Array3f, Bool, Float, UInt32
 from ..sampling import seeded_rng, square_to_cosine_hemisphere, square_to_uniform_hemisphere, to_world
-from ..scene import SceneError
 from .direct import facing_normal, sample_direct
 
 
@@ -60,8 +59,6 @@ def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int
                 radiance: Float, seed: int) -> tuple[Wavefront | None, int]:
     """Intersects one level (its rays end at path vertex `vertex`), adds its emission and eq. 10 estimates
     to `radiance` (flat RGB per camera sample) and returns the next level and the number of rays traced."""
-    if vertex == 1 and geo.scene.estimator_refusals("report"):
-        raise SceneError(geo.scene.estimator_refusals("report")[0])
     hit = geo.closest_hit(wave.o, wave.d, wave.t_min, wave.t_max, wave.skip)
     surf = geo.surface(hit)
     wi = -wave.d
