@@ -164,3 +164,18 @@ def test_float32_round_off_is_not_a_disagreement_but_a_real_offset_is():
     assert compare(sky * (1 + 1e-3), sky, ALPHA).verdict == "disagree"
     noisy = normal_passes(9, 0.225, 1e-9)
     assert compare(noisy * (1 + 5e-7), noisy, ALPHA).verdict == "agree"
+
+
+def test_a_sensor_in_an_included_file_is_planned(tmp_path):
+    """Mitsuba's docs scenes declare their sensor and integrator in included files, with $parameters."""
+    (tmp_path / "parts").mkdir()
+    (tmp_path / "parts" / "sensor.xml").write_text(
+        '<scene version="3.0.0"><integrator type="$integrator"><integer name="max_depth" value="3"/></integrator>'
+        '<sensor type="perspective"><film type="hdrfilm"><integer name="width" value="$w"/>'
+        '<integer name="height" value="60"/></film></sensor></scene>')
+    scene = tmp_path / "main.xml"
+    scene.write_text('<scene version="3.0.0"><default name="integrator" value="path"/>'
+                     '<default name="w" value="80"/><include filename="parts/sensor.xml"/></scene>')
+    p = plan(scene, size=40)
+    assert (p.width, p.height, p.max_depth) == (40, 30, 3)
+    assert '<integer name="width" value="40"' in p.mitsuba_xml() and "<include" not in p.mitsuba_xml()

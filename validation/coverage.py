@@ -121,9 +121,10 @@ def markdown(outcomes: list[SceneOutcome], command: str) -> str:
               sorted(anywhere.items(), key=lambda kv: (-sole[kv[0]], -kv[1], kv[0]))[:40]]
     lines += ["", "## Every scene", "", "| scene | Mitsuba | tracer | verdict or first refusal |", "|---|---|---|---|"]
     for o in outcomes:
-        detail = o.line.split("]: ", 1)[-1] if o.line else (o.verdict or (o.refusals[0] if o.refusals else ""))
+        detail = (f"{o.verdict}: {o.line.split(']: ', 1)[-1]}" if o.line else
+                  o.verdict or (o.refusals[0] if o.refusals else ""))
         lines.append(f"| {o.scene} | {'loads' if o.mitsuba == 'loads' else 'fails'} | {o.tracer} | "
-                     f"{(o.verdict + ': ' if o.verdict else '') + detail.replace('|', '/')[:160]} |")
+                     f"{detail.replace('|', '/')[:160]} |")
     lines += ["", "## Machine and versions", ""] + environment(command)
     return "\n".join(lines) + "\n"
 

@@ -47,8 +47,9 @@ class ScenePlan:
         if integrator is None:
             integrator = ET.Element("integrator", {"type": "path"})
             root.insert(0, integrator)
-        if integrator.get("type") != "path":
-            raise ScenePlanError(f"{self.path}: <integrator type=\"{integrator.get('type')}\">: the comparison "
+        kind = _substitute(integrator.get("type", ""), self.params)
+        if kind != "path":
+            raise ScenePlanError(f"{self.path}: <integrator type=\"{kind}\">: the comparison "
                                  "uses Mitsuba's path integrator")
         _set(integrator, "integer", "max_depth", str(self.max_depth))
         return ET.tostring(root, encoding="unicode")
@@ -151,12 +152,36 @@ def referenced_files(path: Path) -> list[Path]:
 
 
 def _parse(path: Path) -> ET.Element:
+    """The scene's XML with every <include> replaced by the included file's elements (as Mitsuba reads it),
+    so that a sensor or integrator declared in an included file is found and rewritten."""
+    root = _read(path)
+    folders = [path.parent] + [path.parent / p.get("value", "") for p in root.iter("path")]
+    _inline(root, folders, depth=0)
+    return root
+
+
+def _read(path: Path) -> ET.Element:
     try:
         return ET.parse(path).getroot()
     except ET.ParseError as e:
         raise ScenePlanError(f"{path}: malformed XML: {e}") from None
     except OSError as e:
         raise ScenePlanError(f"{path}: {e.strerror}") from None
+
+
+def _inline(node: ET.Element, folders: list[Path], depth: int) -> None:
+    for i, child in reversed(list(enumerate(node))):
+        if child.tag != "include":
+            _inline(child, folders, depth)
+            continue
+        name = child.get("filename", "")
+        found = next((d / name for d in folders if (d / name).is_file()), None)
+        if found is None or depth > 16:
+            raise ScenePlanError(f"<include filename=\"{name}\">: no such file in {', '.join(map(str, folders))}"
+                                 if found is None else f"<include filename=\"{name}\">: includes nested too deep")
+        included = _read(found)
+        _inline(included, folders + [found.parent], depth + 1)
+        node[i:i + 1] = list(included)
 
 
 def _first(root: ET.Element, tag: str, path: Path) -> ET.Element:
@@ -177,7 +202,11 @@ def _value(node: ET.Element | None, name: str, params: dict[str, str]) -> str | 
     prop = None if node is None else next((c for c in node if c.get("name") == name), None)
     if prop is None:
         return None
-    return re.sub(r"\$([A-Za-z_][A-Za-z0-9_]*)", lambda m: params.get(m.group(1), m.group(0)), prop.get("value", ""))
+    return _substitute(prop.get("value", ""), params)
+
+
+def _substitute(text: str, params: dict[str, str]) -> str:
+    return re.sub(r"\$([A-Za-z_][A-Za-z0-9_]*)", lambda m: params.get(m.group(1), m.group(0)), text)
 
 
 def _integer(text, name: str, path: Path) -> int:
