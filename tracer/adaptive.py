@@ -54,7 +54,9 @@ from .errors import PlanError, SettingsError
 from .film import Film, ReconstructionFilter
 from .geometry import SceneGeometry
 from .jit import UInt32
-from .rendering import RenderResult, check_rfilter, check_settings, path_samples, seed_state, timed, trace_pass
+from .estimators import PathEstimator
+from .launch import seed_state, trace_pass
+from .rendering import RenderResult, check_rfilter, check_settings, timed
 from .scene import Scene
 
 CRITERIA = ("stddev", "relative", "variance")
@@ -85,8 +87,10 @@ def render_adaptive(scene: Scene, spp: int | None = None, seed: int | None = Non
         raise SettingsError(f"adaptive sampling needs the box filter, not {rfilter.describe()} (--filter box)")
     geo = SceneGeometry(scene)
 
-    def sampler(sample, pixel, seed_state):
-        return path_samples(geo, scene, sample, pixel, seed_state, max_depth)
+    estimator = PathEstimator(max_depth)
+
+    def sampler(sample, pixel, state):
+        return estimator.samples(geo, scene, sample, pixel, state)
 
     cam = scene.camera
     film = Film(cam.width, cam.height, rfilter)
@@ -100,7 +104,7 @@ def render_adaptive(scene: Scene, spp: int | None = None, seed: int | None = Non
 def adaptive_passes(film: Film, sampler, spp: int, pilot_spp: int, seed: int, criterion: str = "stddev",
                     progress: bool = False) -> tuple[int, np.ndarray]:
     """Pilot, allocation and adaptive pass into `film` (box filter). `sampler(sample, pixel, seed_state)`
-    returns (x, y, L, rays) per lane, as render.path_samples. Returns the rays traced and each pixel's
+    returns (x, y, L, rays) per lane, as PathEstimator.samples. Returns the rays traced and each pixel's
     total sample count (pilot included), flattened."""
     if criterion not in CRITERIA:
         raise SettingsError(f"unknown adaptive criterion '{criterion}'; choose one of {', '.join(CRITERIA)}")

@@ -28,7 +28,9 @@ from .film import Film, ReconstructionFilter
 from .geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneGeometry
 from .integrators.direct import facing_normal
 from .jit import INF, NO_PRIM, PCG32, Array3f, Bool, Float, UInt32, opaque_u32
-from .rendering import PATH_CHUNK, Timed, chunks, seed_state, timed
+from .launch import chunks, seed_state
+from .plan import PATH_CHUNK
+from .rendering import Timed, timed
 from .sampling import seeded_rng
 from .scene import Scene
 

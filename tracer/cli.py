@@ -207,27 +207,28 @@ def _render(args) -> int:
 
     from .film import Film
     from .mitsuba_xml import load_scene
-    from .rendering import check_rfilter, check_settings, make_plan, render, report_settings
+    from .estimators import REPORT_DEPTH_OFFSET, make_estimator
+    from .rendering import check_rfilter, check_settings, make_plan, render
 
     scene = load_scene(args.scene, **parse_defines(args.defines))
     if width is not None or height is not None:
         cam = scene.camera
         scene.camera = dataclasses.replace(cam, width=width or cam.width, height=height or cam.height)
-    max_depth = args.max_depth if args.report_depth is None else args.report_depth + 2
+    max_depth = args.max_depth if args.report_depth is None else args.report_depth + REPORT_DEPTH_OFFSET
     spp = args.spp if args.spp is not None or args.estimator == "path" else 1
     rfilter = check_rfilter(args.filter if args.filter else scene.camera.rfilter)
-    estimator, spp, seed, max_depth = check_settings(scene, args.estimator, spp, args.seed, max_depth)
-    report = report_settings(estimator, max_depth, args.direct, args.indirect, args.hemisphere)
+    name, spp, seed, max_depth = check_settings(scene, args.estimator, spp, args.seed, max_depth)
+    estimator = make_estimator(name, max_depth, args.direct, args.indirect, args.hemisphere)
     cam = scene.camera  # the plan counts every image the outputs hold: the AOVs, the noisy image, OIDN's copies
-    plan = make_plan(cam.width, cam.height, spp, estimator, max_depth, Film.border_of(rfilter), report,
-                     args.time_limit is not None, images=2 + 2 * (args.aovs or args.denoise) + 3 * args.denoise)
+    plan = make_plan(cam.width, cam.height, spp, estimator, Film.border_of(rfilter), args.time_limit is not None,
+                     images=2 + 2 * (args.aovs or args.denoise) + 3 * args.denoise)
     paths = output_paths(args.scene, args.output, args.no_png)
     if args.adaptive:
         from .adaptive import render_adaptive
         result = render_adaptive(scene, spp=spp, seed=seed, max_depth=max_depth, rfilter=rfilter,
                                  progress=not args.quiet)
     else:
-        result = render(scene, estimator, spp=spp, seed=seed, max_depth=max_depth, direct=args.direct,
+        result = render(scene, name, spp=spp, seed=seed, max_depth=max_depth, direct=args.direct,
                         indirect=args.indirect, hemisphere=args.hemisphere, rfilter=rfilter,
                         progress=not args.quiet, time_limit=args.time_limit)
     written, notes = _write_outputs(scene, args, paths, result, rfilter)

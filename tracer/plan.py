@@ -98,7 +98,7 @@ def plan_render(width: int, height: int, spp: int, estimator: str, max_depth: in
                 memory: int | None = None, max_pass_samples: int | None = None) -> Plan:
     """The render's plan, or PlanError when it cannot fit. `images`: developed images held at once (the
     image and its PNG encoding count about two); `slots`, `direct`: the branching estimator's children
-    per vertex and shadow rays (ReportSettings)."""
+    per vertex and shadow rays (BranchingEstimator)."""
     memory = available_memory() if memory is None else memory
     pixels = width * height
     passes = pass_spps(pixels, spp, MAX_PASS_SAMPLES if max_pass_samples is None else max_pass_samples)

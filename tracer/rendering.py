@@ -1,5 +1,5 @@
-"""Rendering a scene with either estimator, planned before its first ray (tracer.plan), in passes and
-chunks that bound memory, into a NumPy image."""
+"""Rendering a scene: the driver of tracer.estimators. The render is planned before its first ray
+(tracer.plan) and the estimator renders it in passes and chunks that bound memory, into a NumPy image."""
 from __future__ import annotations
 
 import numbers
@@ -9,21 +9,17 @@ from pathlib import Path
 
 import drjit as dr
 import numpy as np
-from tqdm import tqdm
 
-from .camera import primary_rays
 from .errors import SettingsError
+from .estimators import BranchingEstimator, PathEstimator, integer, make_estimator
 from .film import FILTERS, Film, ReconstructionFilter
 from .geometry import SceneGeometry
-from .integrators.path import path_radiance
-from .integrators.report import ReportSettings, Wavefront, trace_level
-from .jit import BACKEND, NO_PRIM, PRECISION, Array3f, Bool, Float, UInt32, opaque_u32
-from .plan import PATH_CHUNK, Plan, plan_render
-from .sampling import seeded_rng
+from .jit import BACKEND, PRECISION
+from .launch import seed_state
+from .plan import Plan, plan_render
 from .scene import Scene, SceneError
 
-ESTIMATORS = ("path", "report")
-HEMISPHERES = ("cosine", "uniform")
+ESTIMATORS = (PathEstimator.name, BranchingEstimator.name)
 PASS_STREAM = 0x9A55_0000_0000     # random streams of passes after the first: (seed, PASS_STREAM, pass)
 MAX_SEED = 2**32                   # seeds are 32-bit, as Mitsuba's sampler's
 
@@ -75,38 +71,30 @@ def render(scene: Scene | str | Path, estimator: str = "path", spp: int | None =
     if not isinstance(scene, Scene):
         raise SettingsError(f"scene must be a Scene (tracer.load_scene) or a scene file's path, "
                             f"got {type(scene).__name__}")
-    estimator, spp, seed, max_depth = check_settings(scene, estimator, spp, seed, max_depth)
-    refusals = scene.estimator_refusals(estimator)
+    name, spp, seed, max_depth = check_settings(scene, estimator, spp, seed, max_depth)
+    refusals = scene.estimator_refusals(name)
     if refusals:
         raise SceneError("\n".join(refusals))
-    report = report_settings(estimator, max_depth, direct, indirect, hemisphere)
+    estimator = make_estimator(name, max_depth, direct, indirect, hemisphere)
     rfilter = check_rfilter(scene.camera.rfilter if rfilter is None else rfilter)
     if time_limit is not None and (isinstance(time_limit, bool) or not isinstance(time_limit, numbers.Real)
                                    or not time_limit > 0):
         raise SettingsError(f"time_limit must be a positive number of seconds, got {time_limit!r}")
     cam = scene.camera
     film = Film(cam.width, cam.height, rfilter)
-    plan = make_plan(cam.width, cam.height, spp, estimator, max_depth, film.border, report,
-                     one_spp_passes=time_limit is not None)
+    plan = make_plan(cam.width, cam.height, spp, estimator, film.border, one_spp_passes=time_limit is not None)
     geo = SceneGeometry(scene)
-    if report is not None:
-        run = lambda: _render_report(geo, scene, film, plan, seed, max_depth, report, progress,  # noqa: E731
-                                     time_limit)
-        settings = {"direct": report.direct, "indirect": report.indirect, "hemisphere": report.hemisphere,
-                    "report_depth": max_depth - 2}
-    else:
-        run = lambda: _render_path(geo, scene, film, plan, seed, max_depth, progress, time_limit)  # noqa: E731
-        settings = {}
-    ((rays, rendered), pixels), seconds, compile_s = timed(lambda: (run(), film.develop()))
-    settings.update(passes=len(rendered), requested_spp=spp)
-    return RenderResult(pixels, estimator, sum(rendered), max_depth, seconds, compile_s, rays, settings=settings,
+    rays = 0
+
+    def one_pass(index: int, pass_spp: int) -> None:
+        nonlocal rays
+        rays += estimator.render_pass(geo, scene, film, pass_spp, pass_seed(seed, index), plan.chunk, progress)
+
+    (rendered, pixels), seconds, compile_s = timed(lambda: (run_passes(plan.passes, time_limit, one_pass),
+                                                            film.develop()))
+    settings = estimator.settings | {"passes": len(rendered), "requested_spp": spp}
+    return RenderResult(pixels, name, sum(rendered), max_depth, seconds, compile_s, rays, settings=settings,
                         seed=seed)
-
-
-def _integer(name: str, value) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise SettingsError(f"{name} must be an integer, got {value!r}")
-    return int(value)
 
 
 def check_settings(scene: Scene, estimator: str, spp, seed, max_depth) -> tuple[str, int, int, int]:
@@ -114,9 +102,9 @@ def check_settings(scene: Scene, estimator: str, spp, seed, max_depth) -> tuple[
     parameter, its value and its domain."""
     if estimator not in ESTIMATORS:
         raise SettingsError(f"unknown estimator {estimator!r}; choose one of {', '.join(ESTIMATORS)}")
-    spp = _integer("spp", scene.spp if spp is None else spp)
-    seed = _integer("seed", scene.seed if seed is None else seed)
-    max_depth = _integer("max_depth", scene.max_depth if max_depth is None else max_depth)
+    spp = integer("spp", scene.spp if spp is None else spp)
+    seed = integer("seed", scene.seed if seed is None else seed)
+    max_depth = integer("max_depth", scene.max_depth if max_depth is None else max_depth)
     if spp < 1:
         raise SettingsError(f"spp must be >= 1, got {spp}")
     if not 0 <= seed < MAX_SEED:
@@ -124,27 +112,6 @@ def check_settings(scene: Scene, estimator: str, spp, seed, max_depth) -> tuple[
     if max_depth < -1:
         raise SettingsError(f"max_depth must be -1 (unbounded) or >= 0, got {max_depth}")
     return estimator, spp, seed, max_depth
-
-
-def report_settings(estimator: str, max_depth: int, direct, indirect, hemisphere) -> ReportSettings | None:
-    """The report estimator's settings (None for the path estimator, which refuses them)."""
-    given = {k: v for k, v in (("direct", direct), ("indirect", indirect), ("hemisphere", hemisphere)) if v is not None}
-    if estimator != "report":
-        if given:
-            raise SettingsError(f"{', '.join(given)}: the report estimator's settings; estimator='path' "
-                                f"does not use them")
-        return None
-    if max_depth < 0:
-        raise SettingsError("the report estimator branches at every bounce: it needs max_depth >= 0 "
-                            "(report depth D is max_depth D + 2), not -1 (unbounded)")
-    direct = _integer("direct", 16 if direct is None else direct)
-    indirect = _integer("indirect", 8 if indirect is None else indirect)
-    if direct < 1 or indirect < 1:
-        raise SettingsError(f"direct (N) and indirect (M) must be >= 1, got N = {direct}, M = {indirect}")
-    hemisphere = "cosine" if hemisphere is None else hemisphere
-    if hemisphere not in HEMISPHERES:
-        raise SettingsError(f"hemisphere must be one of {', '.join(HEMISPHERES)}, got {hemisphere!r}")
-    return ReportSettings(direct, indirect, hemisphere)
 
 
 def check_rfilter(rfilter) -> ReconstructionFilter:
@@ -156,11 +123,11 @@ def check_rfilter(rfilter) -> ReconstructionFilter:
     return rfilter
 
 
-def make_plan(width: int, height: int, spp: int, estimator: str, max_depth: int, border: int,
-              report: ReportSettings | None, one_spp_passes: bool = False, images: int = 2) -> Plan:
+def make_plan(width: int, height: int, spp: int, estimator: PathEstimator | BranchingEstimator, border: int,
+              one_spp_passes: bool = False, images: int = 2) -> Plan:
     """tracer.plan's plan for this backend's precision and the estimator's tree."""
-    extra = {} if report is None else {"slots": report.slots, "direct": report.direct}
-    return plan_render(width, height, spp, estimator, max_depth, border=border,
+    extra = {"slots": estimator.slots, "direct": estimator.direct} if isinstance(estimator, BranchingEstimator) else {}
+    return plan_render(width, height, spp, estimator.name, estimator.max_depth, border=border,
                        float_bytes=8 if PRECISION == "double" else 4, images=images,
                        max_pass_samples=width * height if one_spp_passes else None, **extra)
 
@@ -200,95 +167,3 @@ def timed(run):
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
     return out, seconds, sum(k.get("codegen_time", 0) + k.get("backend_time", 0) for k in history) / 1000
-
-
-def chunks(total: int, size: int, progress: bool, label: str):
-    """(start, count) of consecutive launches of at most `size` samples, with a progress bar."""
-    bar = tqdm(total=total, unit="spl", unit_scale=True, desc=label, disable=not progress, leave=False)
-    for start in range(0, total, size):
-        n = min(size, total - start)
-        yield start, n
-        bar.update(n)
-    bar.close()
-
-
-def seed_state(seed: int, *stream: int) -> int:
-    """The initial state of the random streams `stream` of `seed` (seeded_rng's seed)."""
-    h = seed & 0xFFFFFFFFFFFFFFFF
-    for s in stream:
-        h = (h * 0x9E3779B97F4A7C15 + s + 1) % 2**64
-    return h
-
-
-def path_samples(geo, scene, sample: UInt32, pixel: UInt32, seed_state: int, max_depth: int):
-    """One path per lane: lane k draws its random numbers from stream `sample[k]` of `seed_state` and
-    starts through pixel `pixel[k]` (y * width + x). Returns the film position (x, y), the radiance L
-    and the rays each lane traced."""
-    depth = 0xFFFFFFFF if max_depth < 0 else max_depth
-    rng = seeded_rng(sample, seed_state)
-    o, d, t_min, t_max, x, y = primary_rays(scene.camera, pixel, rng)
-    L, count = path_radiance(geo, o, d, t_min, t_max, rng, opaque_u32(depth), opaque_u32(scene.rr_depth))
-    return x, y, L, count
-
-
-def trace_pass(film: Film, sampler, total: int, pixel_of, state: int, progress: bool, label: str,
-               squares: Film | None = None) -> int:
-    """`total` samples into `film`, in launches of PATH_CHUNK: sample k goes through pixel pixel_of(k)
-    and `sampler(sample, pixel, state)` (as path_samples) traces it. `squares`, if given, sums the
-    squared radiance. Returns the rays traced."""
-    rays = 0
-    for start, n in chunks(total, PATH_CHUNK, progress, label):
-        sample = dr.arange(UInt32, n) + opaque_u32(start)
-        x, y, L, count = sampler(sample, pixel_of(sample), state)
-        film.put(x, y, L)
-        if squares is not None:
-            squares.put(x, y, L * L)
-        launched = dr.sum(count)
-        dr.eval(film.data, launched, *([] if squares is None else [squares.data]))
-        rays += int(launched[0])
-    return rays
-
-
-def _render_path(geo, scene, film, plan, seed, max_depth, progress, time_limit) -> tuple[int, list[int]]:
-    sampler = lambda sample, pixel, state: path_samples(geo, scene, sample, pixel, state, max_depth)  # noqa: E731
-    rays = 0
-
-    def one_pass(index, spp):
-        nonlocal rays
-        rays += trace_pass(film, sampler, film.width * film.height * spp, lambda sample: sample // spp,
-                           seed_state(pass_seed(seed, index)), progress, "path")
-
-    done = run_passes(plan.passes, time_limit, one_pass)
-    return rays, done
-
-
-def _render_report(geo, scene, film, plan, seed, max_depth, settings, progress, time_limit) -> tuple[int, list[int]]:
-    rays = 0
-
-    def one_pass(index, spp):
-        nonlocal rays
-        rays += _report_pass(geo, scene, film, spp, pass_seed(seed, index), max_depth, settings, plan.chunk, progress)
-
-    done = run_passes(plan.passes, time_limit, one_pass)
-    return rays, done
-
-
-def _report_pass(geo, scene, film, spp, seed, max_depth, settings, chunk, progress) -> int:
-    rays = 0
-    for index, (start, n) in enumerate(chunks(scene.camera.width * scene.camera.height * spp, chunk,
-                                               progress, "report")):
-        sample = dr.arange(UInt32, n) + opaque_u32(start)
-        rng = seeded_rng(sample, seed_state(seed, index))
-        o, d, t_min, t_max, x, y = primary_rays(scene.camera, sample // spp, rng)
-        dr.eval(x, y)
-        radiance = dr.zeros(Float, n * 3)
-        wave = Wavefront(o, d, t_min, t_max, Array3f(1.0), dr.arange(UInt32, n), UInt32(NO_PRIM), Bool(True))
-        vertex = 1
-        while wave is not None and vertex <= max(max_depth, 0):
-            wave, traced = trace_level(geo, wave, vertex, max_depth, settings, radiance,
-                                       seed_state(seed, index, vertex))
-            rays += traced
-            vertex += 1
-        film.put(x, y, dr.gather(Array3f, radiance, dr.arange(UInt32, n)))
-        dr.eval(film.data)
-    return rays

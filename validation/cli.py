@@ -130,7 +130,9 @@ def _check(args) -> int:
             raise ScenePlanError(f"--{name} must be at least 1, got {getattr(args, name)}")
     if args.report_depth and min(args.report_depth) < 0:
         raise ScenePlanError(f"--report-depth must be at least 0 (max_depth 2, direct light), got {min(args.report_depth)}")
-    depths = [d + 2 for d in args.report_depth] if args.report_depth else (args.max_depth or [None])
+    from tracer.estimators import REPORT_DEPTH_OFFSET
+
+    depths = [d + REPORT_DEPTH_OFFSET for d in args.report_depth] if args.report_depth else (args.max_depth or [None])
     for scene in args.scenes:
         if not scene.is_file():
             raise ScenePlanError(f"scene file '{scene}' not found")

@@ -10,6 +10,7 @@ contribute at `max_depth` (the report's depth D is max_depth D + 2).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import drjit as dr
 
@@ -19,23 +20,8 @@ from ..jit import NO_PRIM, PCG32, Array3f, Bool, Float, UInt32
 from ..sampling import seeded_rng, square_to_cosine_hemisphere, square_to_uniform_hemisphere, to_world
 from .direct import facing_normal, sample_direct
 
-
-@dataclass
-class ReportSettings:
-    direct: int = 16            # N: shadow rays per diffuse vertex
-    indirect: int = 8           # M: hemisphere rays per diffuse vertex
-    hemisphere: str = "cosine"  # "cosine" or "uniform" sampling of eq. 11's directions
-
-    def __post_init__(self):
-        if self.direct < 1 or self.indirect < 1:
-            raise ValueError(f"--direct and --indirect must be >= 1, got N = {self.direct}, M = {self.indirect}")
-        if self.hemisphere not in ("cosine", "uniform"):
-            raise ValueError(f"hemisphere sampling must be 'cosine' or 'uniform', got '{self.hemisphere}'")
-
-    @property
-    def slots(self) -> int:
-        """Children one vertex may spawn: M at a diffuse vertex, two at glass."""
-        return max(self.indirect, 2)
+if TYPE_CHECKING:
+    from ..estimators import BranchingEstimator
 
 
 @dataclass
@@ -55,7 +41,7 @@ class Wavefront:
         return dr.width(self.sample)
 
 
-def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int, settings: ReportSettings,
+def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int, settings: BranchingEstimator,
                 radiance: Float, seed: int) -> tuple[Wavefront | None, int]:
     """Intersects one level (its rays end at path vertex `vertex`), adds its emission and eq. 10 estimates
     to `radiance` (flat RGB per camera sample) and returns the next level and the number of rays traced."""
