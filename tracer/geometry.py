@@ -423,17 +423,17 @@ class SceneGeometry:
                 dr.gather(Float, self.mat_ext_ior, material, active))
 
     # ---- lights -----------------------------------------------------------------------------------
-    def emitted(self, surf: Surface, wo: Array3f) -> Array3f:
-        """Radiance an area light emits towards wo: only on the side its normal faces; on a ray that hits
-        nothing, the environment's."""
+    def emitted(self, surf: Surface, wi: Array3f) -> Array3f:
+        """Radiance an area light emits along wi (pointing away from the surface, back along the ray that
+        found it): only on the side its normal faces; on a ray that hits nothing, the environment's."""
         if not self.has_lights:
             return Array3f(0.0)
         le = Array3f(0.0)
         if self.emitters:
             le = dr.gather(Array3f, self.prim_radiance, surf.prim, surf.valid)
-            le = dr.select(surf.valid & (dr.dot(surf.ns, wo) > 0), le, Array3f(0.0))
+            le = dr.select(surf.valid & (dr.dot(surf.ns, wi) > 0), le, Array3f(0.0))
         if self.has_environment:
-            le = dr.select(surf.valid, le, self.environment_radiance(-wo))
+            le = dr.select(surf.valid, le, self.environment_radiance(-wi))
         return le
 
     def environment_radiance(self, d: Array3f) -> Array3f:

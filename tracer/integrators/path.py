@@ -22,30 +22,48 @@ from .direct import facing_normal, power_heuristic, sample_direct
 Q_MAX = 0.9995  # largest Russian-roulette survival probability
 
 
+class PathState:
+    """What a path carries from one vertex to the next (a Dr.Jit struct: the loop's state, by name).
+
+    Directions: `d` is the direction of travel; at a vertex, wi = -d points away from the surface, back
+    along the ray the light leaves by (geometry.emitted and the BSDFs take wi)."""
+    DRJIT_STRUCT = {"L": Array3f, "beta": Array3f, "eta": Float, "o": Array3f, "d": Array3f, "t_min": Float,
+                    "t_max": Float, "skip": UInt32, "prev_delta": Bool, "prev_pdf": Float, "rays": UInt32,
+                    "depth": UInt32, "active": Bool}
+
+    def __init__(self, o=None, d=None, t_min=None, t_max=None, active=None):
+        self.L, self.beta, self.eta = Array3f(0.0), Array3f(1.0), Float(1.0)   # radiance, throughput, IOR ratio
+        self.o, self.d, self.t_min, self.t_max = o, d, t_min, t_max            # the next ray
+        self.skip = UInt32(NO_PRIM)          # the primitive the ray leaves (not hit again)
+        self.prev_delta = Bool(True)         # the last vertex was specular (or the camera): no MIS on emission
+        self.prev_pdf = Float(0.0)           # solid-angle pdf of the last BSDF sample, for MIS
+        self.rays, self.depth, self.active = UInt32(0), UInt32(0), active
+
+
 @dr.syntax
 def path_radiance(geo: SceneGeometry, o: Array3f, d: Array3f, t_min: Float, t_max: Float, rng: PCG32,
                   max_depth: UInt32, rr_depth: UInt32) -> tuple[Array3f, UInt32]:
     """Radiance along each camera ray and the number of rays each path traced."""
-    L, beta, eta = Array3f(0.0), Array3f(1.0), Float(1.0)
-    depth, rays, skip = UInt32(0), UInt32(0), UInt32(NO_PRIM)
-    prev_delta, prev_pdf = Bool(True), Float(0.0)
-    active = Bool(max_depth > 0)
-    while active:
-        L, beta, eta, o, d, skip, prev_delta, prev_pdf, rays, active_next = _vertex(
-            geo, rng, L, beta, eta, o, d, t_min, t_max, skip, prev_delta, prev_pdf, rays, depth, max_depth)
-        t_min, t_max = Float(0.0), Float(INF)
-        depth += 1
-        rr_active = depth >= rr_depth
-        q = dr.minimum(dr.max(beta) * eta * eta, Q_MAX)
+    path = PathState(o, d, t_min, t_max, Bool(max_depth > 0))
+    while path.active:
+        # --- intersect, add emission (MIS), sample the light and the BSDF ---
+        active_next = _vertex(geo, rng, path, max_depth)
+        path.t_min, path.t_max = Float(0.0), Float(INF)
+        path.depth += 1
+        # --- Russian roulette ---
+        rr_active = path.depth >= rr_depth
+        q = dr.minimum(dr.max(path.beta) * path.eta * path.eta, Q_MAX)
         survive = rng.next_float32() < q
-        beta = dr.select(rr_active, beta / q, beta)
-        active = active_next & (~rr_active | survive) & (dr.max(beta) > 0)
-    return L, rays
+        path.beta = dr.select(rr_active, path.beta / q, path.beta)
+        path.active = active_next & (~rr_active | survive) & (dr.max(path.beta) > 0)
+    return path.L, path.rays
 
 
-def _vertex(geo, rng, L, beta, eta, o, d, t_min, t_max, skip, prev_delta, prev_pdf, rays, depth, max_depth):
-    """One path vertex: emission (MIS-weighted), a shadow ray, and the next direction."""
-    hit = geo.closest_hit(o, d, t_min, t_max, skip)
+def _vertex(geo, rng, path: PathState, max_depth) -> Bool:
+    """One path vertex: emission (MIS-weighted), a shadow ray, and the next direction, updating `path`;
+    returns whether the path may go on."""
+    L, beta, eta, d, rays, depth = path.L, path.beta, path.eta, path.d, path.rays, path.depth
+    hit = geo.closest_hit(path.o, d, path.t_min, path.t_max, path.skip)
     rays += 1
     surf = geo.surface(hit)
     wi = -d
@@ -56,7 +74,7 @@ def _vertex(geo, rng, L, beta, eta, o, d, t_min, t_max, skip, prev_delta, prev_p
         pdf_light = geo.light_pdf_area(surf) * dr.square(dr.select(on_light, hit.t, 0.0)) / dr.maximum(cos_l, 1e-30)
         if geo.has_environment:              # a ray that hits nothing sees the environment
             pdf_light = dr.select(surf.valid, pdf_light, geo.environment_pdf(d))
-        w = dr.select(prev_delta, 1.0, power_heuristic(prev_pdf, pdf_light))
+        w = dr.select(path.prev_delta, 1.0, power_heuristic(path.prev_pdf, pdf_light))
         L += dr.select(on_light, beta * le * w, Array3f(0.0))
     active_next = surf.valid & (depth + 1 < max_depth)
     kind = geo.kind(surf.material, surf.valid)
@@ -99,8 +117,9 @@ def _vertex(geo, rng, L, beta, eta, o, d, t_min, t_max, skip, prev_delta, prev_p
         L, new_d, weight, pdf, delta, rays = _plastic(geo, rng, surf, wi, d, beta, L, active_next & (kind == PLASTIC),
                                                       new_d, weight, pdf, delta, rays)
 
-    beta = beta * weight
-    return L, beta, new_eta, surf.p, new_d, surf.prim, delta, pdf, rays, active_next
+    path.L, path.beta, path.eta, path.rays = L, beta * weight, new_eta, rays
+    path.o, path.d, path.skip, path.prev_delta, path.prev_pdf = surf.p, new_d, surf.prim, delta, pdf
+    return active_next
 
 
 def _plastic(geo, rng, surf, wi, d, beta, L, is_plastic, new_d, weight, pdf, delta, rays):
