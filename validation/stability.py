@@ -160,10 +160,10 @@ def scaled_room(text: str, op: str, scale: float) -> str:
     camera's lookat points moved by it (Mitsuba allows no scale in a camera's to_world) and the clip
     planes scaled: the same scene, moved or scaled as a whole."""
     from tracer import transform
-    from tracer.mitsuba_xml import _transform_op, _Context, Node
 
-    tag = re.match(r"<(\w+) (.*)/>", op)
-    m = _transform_op(_Context(Path("op"), {}), Node(tag.group(1), dict(re.findall(r'(\w+)="([^"]*)"', tag.group(2))), 0))
+    tag, attrs = re.match(r"<(\w+) (.*)/>", op).groups()
+    values = {k: float(v) for k, v in re.findall(r'(\w+)="([^"]*)"', attrs)}
+    m = transform.scale(values["value"]) if tag == "scale" else transform.translate([values[k] for k in "xyz"])
 
     def moved(match):
         p = transform.apply_point(m, [float(x) for x in match.group(2).split(",")])[0]
