@@ -12,6 +12,7 @@ import numpy as np
 
 from . import intersect
 from .bvh import BVHKernel
+from .bvh_cache import cached_layout
 from .jit import INF, NO_PRIM, Array3f, Bool, Float, UInt32, vec3
 from .sampling import square_to_uniform_triangle
 from .scene import BSDF, Mesh, Rectangle, Scene
@@ -56,7 +57,10 @@ class LightSample:
 
 
 class SceneGeometry:
-    def __init__(self, scene: Scene):
+    """`bvh_threshold`: triangles above which they go into a BVH; `material_kinds`: the material codes the
+    kernel carries (DIFFUSE, CONDUCTOR, DIELECTRIC; default: those of the scene's materials)."""
+
+    def __init__(self, scene: Scene, bvh_threshold: int = BVH_THRESHOLD, material_kinds: set[int] | None = None):
         self.scene = scene
         self.rects = scene.rectangles
         self.spheres = scene.spheres
@@ -66,10 +70,11 @@ class SceneGeometry:
         self.sphere_base = self.n_rects + self.n_tris
         self.n_prims = self.sphere_base + len(self.spheres)
         self.materials: list[BSDF] = scene.bsdfs
-        self.kinds = {_KIND_CODE[b.kind] for b in self.materials}
+        self.kinds = {_KIND_CODE[b.kind] for b in self.materials} if material_kinds is None else set(material_kinds)
         self.emitters = scene.emitters
         self.smooth = any(m.normals is not None for m in scene.meshes)
-        self.bvh = BVHKernel(self.tri_vertices, self.n_rects) if self.n_tris > BVH_THRESHOLD else None
+        self.bvh = BVHKernel(self.tri_vertices, self.n_rects, cached_layout(self.tri_vertices)) \
+            if self.n_tris > bvh_threshold else None
         self.occluders = self._possible_occluders()
         self._build_tables()
 
