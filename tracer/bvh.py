@@ -123,18 +123,21 @@ def _split(ids: np.ndarray, centroid: np.ndarray, right_side: np.ndarray, b: np.
     extent = centroid[ids[:, b + s - 1], axes] - centroid[ids[:, b], axes]   # (3, nodes)
     axis = np.argmax(extent, axis=0)
     whole = s.sum() == ids.shape[1]          # the level's nodes cover every slot (no leaves yet)
-    slots = np.arange(ids.shape[1], dtype=np.int32) if whole else _ranges(b, s)
+    slots = np.arange(ids.shape[1], dtype=np.int32) if whole else _ranges(b, s).astype(np.int32)
     node = np.repeat(np.arange(len(b), dtype=np.int32), s)
     right_side[ids[axis[node], slots]] = slots >= (b + half)[node]
-    # a slot's destination, given the left-child triangles up to it (inclusive) counted from the level's
-    # first slot: a left one goes after the left ones before it, a right one after its node's left half
-    before = (np.cumsum(half) - half)[node]   # left-child triangles of the level's earlier nodes
-    to_right, to_left = slots + half[node] + before, b[node] - before - 1
+    # A slot's destination, given `left`, the left-child triangles up to it (inclusive) counted from the
+    # level's first slot: a left one goes to b - before - 1 + left, after the left ones before it in its
+    # node; a right one to slot + half - (left - before), after its node's left half and the right ones
+    # before it (`before`: the left-child triangles of the level's earlier nodes).
+    before = (np.cumsum(half, dtype=np.int32) - half)[node]
+    to_left = b[node] - before - 1
+    gap = slots + half[node] + before - to_left   # to_right - to_left: dest = to_left + left + is_right * (gap - 2 left)
     for a in range(3):
-        moved = ids[a, slots]
+        moved = ids[a].copy() if whole else ids[a, slots]
         is_right = right_side[moved]
-        left_so_far = np.cumsum(~is_right, dtype=np.int32)
-        ids[a, np.where(is_right, to_right - left_so_far, to_left + left_so_far)] = moved
+        left = np.cumsum(~is_right, dtype=np.int32)
+        ids[a, to_left + left + is_right * (gap - 2 * left)] = moved
 
 
 def _ranges(begin: np.ndarray, size: np.ndarray) -> np.ndarray:
