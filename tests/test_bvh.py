@@ -236,3 +236,21 @@ def test_render_reuses_a_given_geometry():
     other = tracer.load_scene(SCENES / "cornell_box.xml", width=16, height=16)
     with pytest.raises(SettingsError, match="geometry"):
         render(other, "path", spp=4, geometry=geo)
+
+
+def test_closest_hit_work_counts_the_walk():
+    """A ray that misses the root box visits the root only and tests nothing; a ray that hits tests at
+    least the triangle it hits; no ray visits more inner nodes than the table has."""
+    rng = np.random.default_rng(14)
+    tris = rng.uniform(-1, 1, (400, 1, 3)) + rng.uniform(-0.1, 0.1, (400, 3, 3))
+    kernel = BVHKernel(tris, prim_base=0)
+    o, d = _rays(2000, [0, 0, 0], 0.5, seed=15)
+    away = Array3f(*np.tile([10.0, 10.0, 10.0], (2000, 1)).T)     # outside, pointing away
+    steps, tests = (a.numpy() for a in kernel.closest_hit_work(away, Array3f(*np.abs(d.numpy()))))
+    assert (steps == 1).all() and (tests == 0).all()
+    n = 2000
+    t, _, _, _ = kernel.closest_hit(o, d, 0.0, Float(np.full(n, np.inf)), UInt32(np.full(n, NO_PRIM, np.uint32)),
+                                    Float(np.zeros(n)), Float(np.zeros(n)), UInt32(NO_PRIM))
+    steps, tests = (a.numpy() for a in kernel.closest_hit_work(o, d))
+    hit = np.isfinite(t.numpy())
+    assert hit.any() and (tests[hit] >= 1).all() and (steps >= 1).all() and (steps <= len(kernel.rows)).all()
