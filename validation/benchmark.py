@@ -548,7 +548,7 @@ def mesh_markdown(rows: dict) -> list[str]:
                                                          lambda x: f"{x['setup_seconds']:.2f} (with BVH)") + " |",
         "| BVH build alone [s] | " + cells(lambda x: f"{x['profile']['bvh_build_seconds']:.2f}", None) + " |",
         "| geometry: BVH (or cache hit), tables [s] | " + cells(lambda x: f"{x['geometry_seconds']:.2f}", None) + " |",
-        "| first render: kernel compile [s] | " + cells(lambda x: f"{x['first_compile']:.2f}", None) + " |",
+        "| first render: kernel compile (Dr.Jit's kernel cache as the bench left it) [s] | " + cells(lambda x: f"{x['first_compile']:.2f}", None) + " |",
         "| render [s] | " + cells(lambda x: f"{x['median']:.2f}", lambda x: f"{x['median']:.2f}") + " |",
         "| rays traced per render (closest hit + shadow) | " + cells(lambda x: f"{x['rays'] / 1e6:.1f} M", None) + " |",
         "| closest-hit queries alone [rays/s] | " + cells(rate("closest_seconds"), rate("closest_seconds")) + " |",
