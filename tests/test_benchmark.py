@@ -20,3 +20,42 @@ def test_sphere_scene_has_the_requested_triangle_count(tmp_path):
     scene = benchmark._sphere_scene(tmp_path, 1000)
     n = benchmark._triangles(scene)
     assert 2 * 900 <= n <= 2 * 1100                 # two blocks, each a sphere of about 1000 triangles
+
+
+def test_mesh_scene_has_three_smooth_meshes_of_mixed_materials(tmp_path):
+    import tracer
+    from validation.mesh_scene import write_mesh_scene
+
+    scene_file = write_mesh_scene(tmp_path, 6000)
+    scene = tracer.load_scene(scene_file)
+    assert len(scene.meshes) == 3 and all(m.normals is not None for m in scene.meshes)
+    assert {m.bsdf.kind for m in scene.meshes} == {"diffuse", "conductor", "dielectric"}
+    assert 0.9 * 6000 <= sum(len(m.faces) for m in scene.meshes) <= 6000
+    stamps = {p: p.stat().st_mtime_ns for p in tmp_path.glob("*.obj")}
+    write_mesh_scene(tmp_path, 6000)                      # meshes written once, then reused
+    assert {p: p.stat().st_mtime_ns for p in tmp_path.glob("*.obj")} == stamps
+    assert not list(tmp_path.glob(".*"))                  # no temporary left behind
+
+
+def test_bench_sections_are_checked_before_running(tmp_path):
+    import pytest
+    from tracer.errors import UserError
+
+    with pytest.raises(UserError, match="unknown bench sections"):
+        benchmark.run(tmp_path, ["meshes", "nonsense"])
+    with pytest.raises(UserError, match="performance.json has no"):   # nothing to keep the others from
+        benchmark.run(tmp_path, ["meshes"])
+
+
+def test_mesh_profile_counts_on_a_small_mesh(monkeypatch, tmp_path):
+    import tracer
+    from tracer.geometry import SceneGeometry
+    from validation import mesh_profile
+
+    monkeypatch.setattr(mesh_profile, "RAYS", 4096)
+    monkeypatch.setattr(mesh_profile, "LAUNCHES", 1)
+    scene = tracer.load_scene(benchmark._sphere_scene(tmp_path, 500))
+    p = mesh_profile.profile_tracer(SceneGeometry(scene))
+    assert p["rays"] == 4096 and 0 < p["hit_fraction"] <= 1
+    assert p["closest_seconds"] > 0 and p["shadow_seconds"] > 0 and p["bvh_build_seconds"] > 0
+    assert 1 <= p["steps_mean"] <= p["bvh_rows"] and p["tests_mean"] > 0

@@ -32,12 +32,11 @@ def test_build_covers_every_triangle_once():
 
 
 @pytest.mark.parametrize("skip_prim", [False, True])
-def test_bvh_matches_brute_force(monkeypatch, skip_prim):
+def test_bvh_matches_brute_force(skip_prim):
     scene = tracer.load_scene(SCENES / "hexagon_room.xml")
     o, d = _rays(4000, [4, 0, 0], 2.5)
     brute = geometry.SceneGeometry(scene)
-    monkeypatch.setattr(geometry, "BVH_THRESHOLD", 0)
-    bvh = geometry.SceneGeometry(scene)
+    bvh = geometry.SceneGeometry(scene, bvh_threshold=0)
     assert bvh.bvh is not None and brute.bvh is None
     h1 = brute.closest_hit(o, d, 0.0, float("inf"), UInt32(NO_PRIM))
     skip = h1.prim if skip_prim else UInt32(NO_PRIM)
@@ -147,3 +146,111 @@ def test_device_tables_start_on_a_cache_line(offset):
     out = _aligned(a)
     assert out.ctypes.data % 64 == 0 and out.dtype == a.dtype
     np.testing.assert_array_equal(out, a)
+
+
+@pytest.mark.parametrize("ties", [False, True])
+def test_build_splits_each_node_at_the_median_of_its_longest_axis(ties):
+    """Every inner node: the left child holds the floor(n/2) triangles whose float32 centroids come first
+    along the axis of the node's largest centroid extent; also with many equal centroid coordinates."""
+    rng = np.random.default_rng(11)
+    tris = rng.uniform(-1, 1, (2000, 1, 3)) * [4.0, 1.0, 0.5] + rng.uniform(-0.05, 0.05, (2000, 3, 3))
+    if ties:
+        tris = np.round(tris * 4) / 4
+    tree = build(tris)
+    centroid = ((tris.min(axis=1) + tris.max(axis=1)) / 2).astype(np.float32)
+    slots = {}   # each node's triangles: its leaves' slots, gathered bottom-up
+    for begin, end in tree.levels[::-1]:
+        for node in range(begin, end):
+            slots[node] = (tree.order[tree.first[node]:tree.first[node] + tree.count[node]]
+                           if tree.left[node] < 0 else np.concatenate([slots[tree.left[node]], slots[tree.right[node]]]))
+    for node in np.flatnonzero(tree.inner):
+        a, b = centroid[slots[tree.left[node]]], centroid[slots[tree.right[node]]]
+        both = np.vstack([a, b])
+        axis = np.argmax(both.max(axis=0) - both.min(axis=0))
+        assert len(a) == len(both) // 2 and a[:, axis].max() <= b[:, axis].min()
+        lo, hi = tris[slots[node]].min(axis=(0, 1)), tris[slots[node]].max(axis=(0, 1))
+        assert np.array_equal(tree.lo[node], lo) and np.array_equal(tree.hi[node], hi)   # exact boxes
+
+
+def test_layout_cache_reuses_in_memory_and_on_disk(tmp_path):
+    from tracer import bvh_cache
+
+    rng = np.random.default_rng(12)
+    tris = rng.uniform(-1, 1, (300, 3, 3))
+    bvh_cache.clear_memory()
+    built = bvh_cache.cached_layout(tris, tmp_path)
+    assert bvh_cache.cached_layout(tris, tmp_path) is built            # this process: the same object
+    (stored,) = tmp_path.glob("*.npz")
+    assert not list(tmp_path.glob(".*"))                               # no temporary left behind
+    bvh_cache.clear_memory()
+    loaded = bvh_cache.cached_layout(tris, tmp_path)                   # from disk
+    assert loaded is not built
+    for field in ("nodes", "order", "rows", "root"):
+        assert np.array_equal(getattr(loaded, field), getattr(built, field))
+    assert loaded.stack_size == built.stack_size
+    moved = tris.copy()
+    moved[0, 0, 0] += 1e-9                                             # another mesh: another key
+    assert bvh_cache.key(moved) != bvh_cache.key(tris)
+    bvh_cache.clear_memory()
+
+
+@pytest.mark.parametrize("damage", ["truncate", "order", "link", "key"])
+def test_layout_cache_rebuilds_a_damaged_file(tmp_path, damage):
+    from tracer import bvh_cache
+
+    tris = np.random.default_rng(13).uniform(-1, 1, (300, 3, 3))
+    bvh_cache.clear_memory()
+    built = bvh_cache.cached_layout(tris, tmp_path)
+    (path,) = tmp_path.glob("*.npz")
+    if damage == "truncate":
+        path.write_bytes(path.read_bytes()[:200])
+    else:
+        with np.load(path) as f:
+            arrays = dict(f)
+        if damage == "order":
+            arrays["order"][0] = arrays["order"][1]                   # no longer a permutation
+        elif damage == "link":
+            arrays["nodes"][0, 3] = len(arrays["nodes"])              # a row past the table
+        else:
+            arrays["key"] = np.array("0" * 40)
+        with open(path, "wb") as f:
+            np.savez(f, **arrays)
+    assert bvh_cache._load(path, bvh_cache.key(tris), len(tris)) is None
+    bvh_cache.clear_memory()
+    rebuilt = bvh_cache.cached_layout(tris, tmp_path)
+    assert np.array_equal(rebuilt.nodes, built.nodes) and np.array_equal(rebuilt.order, built.order)
+    assert bvh_cache._load(path, bvh_cache.key(tris), len(tris)) is not None   # overwritten with a good file
+    bvh_cache.clear_memory()
+
+
+def test_render_reuses_a_given_geometry():
+    from tracer.errors import SettingsError
+    from tracer.rendering import render
+
+    scene = tracer.load_scene(SCENES / "cornell_box.xml", width=16, height=16)
+    geo = geometry.SceneGeometry(scene, bvh_threshold=0)
+    assert geo.bvh is not None
+    a = render(scene, "path", spp=4, seed=1, max_depth=3, geometry=geo)
+    b = render(scene, "path", spp=4, seed=1, max_depth=3, geometry=geo)
+    np.testing.assert_array_equal(a.image, b.image)
+    other = tracer.load_scene(SCENES / "cornell_box.xml", width=16, height=16)
+    with pytest.raises(SettingsError, match="geometry"):
+        render(other, "path", spp=4, geometry=geo)
+
+
+def test_closest_hit_work_counts_the_walk():
+    """A ray that misses the root box visits the root only and tests nothing; a ray that hits tests at
+    least the triangle it hits; no ray visits more inner nodes than the table has."""
+    rng = np.random.default_rng(14)
+    tris = rng.uniform(-1, 1, (400, 1, 3)) + rng.uniform(-0.1, 0.1, (400, 3, 3))
+    kernel = BVHKernel(tris, prim_base=0)
+    o, d = _rays(2000, [0, 0, 0], 0.5, seed=15)
+    away = Array3f(*np.tile([10.0, 10.0, 10.0], (2000, 1)).T)     # outside, pointing away
+    steps, tests = (a.numpy() for a in kernel.closest_hit_work(away, Array3f(*np.abs(d.numpy()))))
+    assert (steps == 1).all() and (tests == 0).all()
+    n = 2000
+    t, _, _, _ = kernel.closest_hit(o, d, 0.0, Float(np.full(n, np.inf)), UInt32(np.full(n, NO_PRIM, np.uint32)),
+                                    Float(np.zeros(n)), Float(np.zeros(n)), UInt32(NO_PRIM))
+    steps, tests = (a.numpy() for a in kernel.closest_hit_work(o, d))
+    hit = np.isfinite(t.numpy())
+    assert hit.any() and (tests[hit] >= 1).all() and (steps >= 1).all() and (steps <= len(kernel.rows)).all()

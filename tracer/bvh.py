@@ -61,38 +61,83 @@ class Tree:
 
 
 def build(tri_vertices: np.ndarray) -> Tree:
-    """Median-split BVH over triangles given as (n, 3, 3) vertices."""
-    lo_t, hi_t = tri_vertices.min(axis=1), tri_vertices.max(axis=1)
-    centroid = (lo_t + hi_t) / 2
-    order = np.arange(len(tri_vertices))
-    lo, hi, left, right, first, count = [], [], [], [], [], []
-    begin, size, n_nodes, levels = np.array([0]), np.array([len(tri_vertices)]), 1, []
+    """Median-split BVH over triangles given as (n, 3, 3) vertices.
+
+    Each node's triangles are split at the median centroid along the longest axis of their centroids'
+    extent (centroids rounded to float32). The triangle ids are sorted by centroid once per axis; each
+    level then splits all its nodes at once, partitioning every axis's list stably into the children's
+    halves (linear time, no sort per level), so that each list stays sorted within every node. Boxes are
+    reduced over the leaves' triangles, then merged bottom-up."""
+    v = tri_vertices
+    lo_t, hi_t = np.minimum(np.minimum(v[:, 0], v[:, 1]), v[:, 2]), np.maximum(np.maximum(v[:, 0], v[:, 1]), v[:, 2])
+    centroid = ((lo_t + hi_t) / 2).astype(np.float32)
+    ids = np.stack([_argsort(centroid[:, a]) for a in range(3)])   # (3, n): triangle ids, per axis
+    right_side = np.zeros(len(v), bool)
+    left, right, first, count = [], [], [], []
+    begin, size, n_nodes, levels = np.array([0]), np.array([len(v)]), 1, []
     while len(begin):
         levels.append((n_nodes - len(begin), n_nodes))
-        slots = _ranges(begin, size)
-        starts = np.cumsum(size) - size
-        ids = order[slots]
-        lo.append(np.minimum.reduceat(lo_t[ids], starts))
-        hi.append(np.maximum.reduceat(hi_t[ids], starts))
         split = size > LEAF_SIZE
         first.append(np.where(split, 0, begin))
         count.append(np.where(split, 0, size))
-        # split every inner segment at its median along its centroids' longest axis
-        c = centroid[ids]
-        extent = np.maximum.reduceat(c, starts) - np.minimum.reduceat(c, starts)
-        segment = np.repeat(np.arange(len(begin)), size)
-        key = c[np.arange(len(ids)), np.argmax(extent, axis=1)[segment]]
-        order[slots] = ids[np.lexsort((key, segment))]
         child = np.full(len(begin), -1)
         child[split] = n_nodes + 2 * np.arange(split.sum())
         left.append(child)
         right.append(np.where(split, child + 1, -1))
-        half = size[split] // 2
-        begin = np.stack([begin[split], begin[split] + half], 1).ravel()
-        size = np.stack([half, size[split] - half], 1).ravel()
+        b, s = begin[split], size[split]
+        half = s // 2
+        if len(b):
+            _split(ids, centroid, right_side, b, s, half)
+        begin = np.stack([b, b + half], 1).ravel()
+        size = np.stack([half, s - half], 1).ravel()
         n_nodes += len(begin)
     cat = np.concatenate
-    return Tree(cat(lo), cat(hi), cat(left), cat(right), cat(first), cat(count), order, levels)
+    left, right, first, count = cat(left), cat(right), cat(first), cat(count)
+    order = ids[0].astype(np.int64)
+    lo, hi = np.empty((n_nodes, 3), lo_t.dtype), np.empty((n_nodes, 3), hi_t.dtype)
+    leaf = np.flatnonzero(left < 0)
+    leaf = leaf[np.argsort(first[leaf])]     # reduceat wants ascending starts
+    lo[leaf], hi[leaf] = np.minimum.reduceat(lo_t[order], first[leaf]), np.maximum.reduceat(hi_t[order], first[leaf])
+    for lv_begin, lv_end in levels[::-1]:   # bottom-up
+        node = lv_begin + np.flatnonzero(left[lv_begin:lv_end] >= 0)
+        lo[node] = np.minimum(lo[left[node]], lo[right[node]])
+        hi[node] = np.maximum(hi[left[node]], hi[right[node]])
+    return Tree(lo, hi, left, right, first, count, order, levels)
+
+
+def _argsort(key: np.ndarray) -> np.ndarray:
+    """The stable argsort of float32 keys (int32): one sort of 64-bit words, the key's bits mapped to an
+    order-preserving unsigned integer above the index (faster than NumPy's stable argsort)."""
+    bits = (key + np.float32(0)).view(np.uint32).astype(np.uint64)   # + 0: -0.0 becomes 0.0
+    bits = np.where(bits >> 31, bits ^ 0xFFFFFFFF, bits | 0x80000000)
+    return (np.sort(bits << 32 | np.arange(len(key), dtype=np.uint64)) & 0xFFFFFFFF).astype(np.int32)
+
+
+def _split(ids: np.ndarray, centroid: np.ndarray, right_side: np.ndarray, b: np.ndarray, s: np.ndarray,
+           half: np.ndarray) -> None:
+    """Splits nodes [b, b + s) of sorted slots in place: in each, the first half[i] triangles of its list
+    along its longest centroid axis form the left child, and every axis's list is partitioned stably,
+    left child first."""
+    axes = np.arange(3)[:, None]
+    b, s, half = b.astype(np.int32), s.astype(np.int32), half.astype(np.int32)   # int32: less memory traffic
+    extent = centroid[ids[:, b + s - 1], axes] - centroid[ids[:, b], axes]   # (3, nodes)
+    axis = np.argmax(extent, axis=0)
+    whole = s.sum() == ids.shape[1]          # the level's nodes cover every slot (no leaves yet)
+    slots = np.arange(ids.shape[1], dtype=np.int32) if whole else _ranges(b, s).astype(np.int32)
+    node = np.repeat(np.arange(len(b), dtype=np.int32), s)
+    right_side[ids[axis[node], slots]] = slots >= (b + half)[node]
+    # A slot's destination, given `left`, the left-child triangles up to it (inclusive) counted from the
+    # level's first slot: a left one goes to b - before - 1 + left, after the left ones before it in its
+    # node; a right one to slot + half - (left - before), after its node's left half and the right ones
+    # before it (`before`: the left-child triangles of the level's earlier nodes).
+    before = (np.cumsum(half, dtype=np.int32) - half)[node]
+    to_left = b[node] - before - 1
+    gap = slots + half[node] + before - to_left   # to_right - to_left: dest = to_left + left + is_right * (gap - 2 left)
+    for a in range(3):
+        moved = ids[a].copy() if whole else ids[a, slots]
+        is_right = right_side[moved]
+        left = np.cumsum(~is_right, dtype=np.int32)
+        ids[a, to_left + left + is_right * (gap - 2 * left)] = moved
 
 
 def _ranges(begin: np.ndarray, size: np.ndarray) -> np.ndarray:
@@ -154,33 +199,50 @@ class BoxGrid:
         return step * inv_d, (origin - o) * inv_d
 
 
+@dataclass
+class Layout:
+    """The BVH as the kernel reads it, without the triangles' data (what tracer.bvh_cache stores)."""
+    nodes: np.ndarray      # (rows, 8) uint32: per row the two children's box words and links
+    order: np.ndarray      # (triangles,) original triangle index of each leaf slot
+    rows: np.ndarray       # (rows,) the tree node of each table row (for the tests)
+    root: np.ndarray       # (2, 3) float64 root box, from which the BoxGrid is made
+    stack_size: int        # tree levels: one pending far child per level at most
+
+
+def layout(tri_vertices: np.ndarray) -> Layout:
+    """Builds the tree over (n, 3, 3) triangle vertices and encodes its node table."""
+    tree = build(tri_vertices)
+    grid = BoxGrid(tree.lo[0], tree.hi[0])
+    q_lo, q_hi = grid.quantize(tree.lo, tree.hi)
+    boxes = np.stack([q_lo[:, 0] | q_lo[:, 1] << 16, q_lo[:, 2] | q_hi[:, 0] << 16,
+                      q_hi[:, 1] | q_hi[:, 2] << 16], 1).astype(np.uint32)
+    inner = np.flatnonzero(tree.inner)
+    inner = inner[np.argsort(depth_first(tree)[inner])]
+    index = np.zeros(len(tree.left), np.int64)
+    index[inner] = np.arange(len(inner))
+    link = np.where(tree.inner, index, LEAF_BIT | (tree.first * 8 + tree.count))
+    if not len(inner):   # a single leaf: a root with it as both children
+        inner, tree.left[0], tree.right[0] = np.array([0]), 0, 0
+    nodes = np.empty((len(inner), 8), np.uint32)
+    for column, child in ((0, tree.left[inner]), (4, tree.right[inner])):
+        nodes[:, column:column + 3], nodes[:, column + 3] = boxes[child], link[child]
+    return Layout(nodes, tree.order, inner, np.array([tree.lo[0], tree.hi[0]], np.float64), len(tree.levels))
+
+
 class BVHKernel:
     """The BVH's inner nodes and triangles on the device, and their traversal; triangle ids are offset by
-    `prim_base`."""
+    `prim_base`. `tables`: the triangles' Layout if already built (tracer.bvh_cache), else built here."""
 
-    def __init__(self, tri_vertices: np.ndarray, prim_base: int):
-        tree = build(tri_vertices)
-        self.grid = BoxGrid(tree.lo[0], tree.hi[0])
-        q_lo, q_hi = self.grid.quantize(tree.lo, tree.hi)
-        boxes = np.stack([q_lo[:, 0] | q_lo[:, 1] << 16, q_lo[:, 2] | q_hi[:, 0] << 16,
-                          q_hi[:, 1] | q_hi[:, 2] << 16], 1).astype(np.uint32)
-        inner = np.flatnonzero(tree.inner)
-        inner = inner[np.argsort(depth_first(tree)[inner])]
-        index = np.zeros(len(tree.left), np.int64)
-        index[inner] = np.arange(len(inner))
-        link = np.where(tree.inner, index, LEAF_BIT | (tree.first * 8 + tree.count))
-        if not len(inner):   # a single leaf: a root with it as both children
-            inner, tree.left[0], tree.right[0] = np.array([0]), 0, 0
-        self.rows = inner   # the tree node of each table row
-        nodes = np.empty((len(inner), 8), np.uint32)
-        for column, child in ((0, tree.left[inner]), (4, tree.right[inner])):
-            nodes[:, column:column + 3], nodes[:, column + 3] = boxes[child], link[child]
-        self.nodes = UInt32(_aligned(nodes))
-        self.stack_size = len(tree.levels)   # one pending far child per level at most
-        v = tri_vertices[tree.order]
+    def __init__(self, tri_vertices: np.ndarray, prim_base: int, tables: Layout | None = None):
+        tables = layout(tri_vertices) if tables is None else tables
+        self.grid = BoxGrid(*tables.root)
+        self.rows = tables.rows
+        self.nodes = UInt32(_aligned(tables.nodes))
+        self.stack_size = tables.stack_size
+        v = tri_vertices[tables.order]
         tris = np.zeros((len(v), 12), _FLOAT)
         tris[:, 0:3], tris[:, 4:7], tris[:, 8:11] = v[:, 0], v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
-        tris[:, 3] = (tree.order + prim_base).astype(_UINT).view(_FLOAT)
+        tris[:, 3] = (tables.order + prim_base).astype(_UINT).view(_FLOAT)
         self.tris = Float(_aligned(tris.ravel()))
 
     def _child(self, x: ArrayXu, k: int, slope: Array3f, offset: Array3f,
@@ -193,17 +255,21 @@ class BVHKernel:
         t_far = dr.min(dr.maximum(t0, t1))
         return (t_near <= t_far) & (t_far >= 0) & (t_near <= t_max), t_near, x[4 * k + 3]
 
-    def _walk(self, o: Array3f, d: Array3f, active: Bool, t_max, visit_leaf, finished, payload: tuple) -> tuple:
+    def _walk(self, o: Array3f, d: Array3f, active: Bool, t_max, visit_leaf, finished, payload: tuple,
+              count_steps: bool = False) -> tuple:
         """Depth-first traversal, nearer child first, of the boxes that o + t d, 0 <= t <= t_max(payload),
         enters: payload = visit_leaf(leaf word, *payload) at each such leaf; a lane stops at the end or
-        once finished(*payload)."""
+        once finished(*payload). With count_steps (diagnostics only), the payload is followed by the
+        number of nodes each lane visited."""
         (slope, offset), none, n = self.grid.ray_terms(o, d), UInt32(0xFFFFFFFF), len(payload)
+        counter = (UInt32(0),) if count_steps else ()
+        c = len(counter)
 
         def cond(node, *rest):
-            return (node != none) & ~finished(*rest[:n])
+            return (node != none) & ~finished(*rest[c:c + n])
 
         def body(node, *rest):
-            payload, stack = rest[:n], rest[n:]
+            counted, payload, stack = tuple(k + 1 for k in rest[:c]), rest[c:c + n], rest[c + n:]
             x = dr.gather(ArrayXu, self.nodes, node, shape=(8, dr.width(node)))
             t_end = t_max(*payload)
             (hit_a, t_a, link_a), (hit_b, t_b, link_b) = (self._child(x, k, slope, offset, t_end) for k in (0, 1))
@@ -219,11 +285,12 @@ class BVHKernel:
             popped = (*stack[1:], none)
             node = dr.select(pop, stack[0], near)
             stack = tuple(dr.select(push, p, dr.select(pop, q, s)) for p, q, s in zip(pushed, popped, stack))
-            return (node, *payload, *stack)
+            return (node, *counted, *payload, *stack)
 
         start = dr.select(active, UInt32(0), none)
-        state = (start, *payload, *(UInt32(none) for _ in range(self.stack_size)))
-        return dr.while_loop(state, cond, body)[1:1 + n]
+        state = (start, *counter, *payload, *(UInt32(none) for _ in range(self.stack_size)))
+        out = dr.while_loop(state, cond, body)
+        return (*out[1 + c:1 + c + n], *out[1:1 + c])
 
     def _leaf(self, word, o, d, t_min, t_best, skip, target):
         """The nearest hit among a leaf's triangles: (t, prim, b1, b2), t = inf if none."""
@@ -264,6 +331,17 @@ class BVHKernel:
 
         return self._walk(o, d, Bool(active), lambda _: dist, visit_leaf, lambda blocked: blocked,
                           (Bool(False),))[0]
+
+    def closest_hit_work(self, o: Array3f, d: Array3f) -> tuple[UInt32, UInt32]:
+        """Diagnostics: the nodes visited and the triangles tested by each ray's closest-hit traversal (the
+        same walk as closest_hit, counting)."""
+        def visit_leaf(word, t_best, tests):
+            t, _, _, _ = self._leaf(word, o, d, 0.0, t_best, UInt32(0xFFFFFFFF), None)
+            return dr.minimum(t, t_best), tests + (word & 7)
+
+        _, tests, steps = self._walk(o, d, Bool(True), lambda t_best, _: t_best, visit_leaf,
+                                     lambda *_: Bool(False), (Float(INF), UInt32(0)), count_steps=True)
+        return steps, tests
 
 
 def _aligned(a: np.ndarray, alignment: int = 64) -> np.ndarray:

@@ -13,6 +13,7 @@ import numpy as np
 from . import intersect
 from .bsdf import fresnel_conductor, fresnel_diffuse_reflectance
 from .bvh import BVHKernel
+from .bvh_cache import cached_layout
 from .jit import INF, NO_PRIM, Array3f, Bool, Float, UInt32, vec3
 from .sampling import square_to_uniform_disk_concentric, square_to_uniform_sphere, square_to_uniform_triangle
 from .scene import BSDF, Bitmap, Checkerboard, Mesh, Rectangle, Scene, Sphere
@@ -62,7 +63,10 @@ class LightSample:
 
 
 class SceneGeometry:
-    def __init__(self, scene: Scene):
+    """`bvh_threshold`: triangles above which they go into a BVH; `material_kinds`: the material codes the
+    kernel carries (DIFFUSE, CONDUCTOR, DIELECTRIC; default: those of the scene's materials)."""
+
+    def __init__(self, scene: Scene, bvh_threshold: int = BVH_THRESHOLD, material_kinds: set[int] | None = None):
         self.scene = scene
         self.rects = scene.rectangles
         self.spheres = scene.spheres
@@ -74,7 +78,7 @@ class SceneGeometry:
         self.cylinder_base = self.sphere_base + len(self.spheres)
         self.n_prims = self.cylinder_base + len(self.cylinders)
         self.materials: list[BSDF] = scene.bsdfs
-        self.kinds = {_KIND_CODE[b.kind] for b in self.materials}
+        self.kinds = {_KIND_CODE[b.kind] for b in self.materials} if material_kinds is None else set(material_kinds)
         self.textured = any(b.texture is not None for b in self.materials)
         # conductors other than perfect mirrors need their Fresnel term; without them the kernel has none
         self.fresnel_conductors = any(b.kind == "conductor" and not b.perfect_mirror for b in self.materials)
@@ -90,7 +94,8 @@ class SceneGeometry:
         self.has_infinite_lights = self.has_environment or bool(self.directionals)   # shadow rays leave the scene
         self.has_lights = self.n_lights > 0
         self.smooth = any(m.normals is not None for m in scene.meshes)
-        self.bvh = BVHKernel(self.tri_vertices, self.n_rects) if self.n_tris > BVH_THRESHOLD else None
+        self.bvh = BVHKernel(self.tri_vertices, self.n_rects, cached_layout(self.tri_vertices)) \
+            if self.n_tris > bvh_threshold else None
         self.occluders = self._possible_occluders()
         self._build_tables()
 

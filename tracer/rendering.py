@@ -56,7 +56,8 @@ class RenderResult(Timed):
 def render(scene: Scene | str | Path, estimator: str = "path", spp: int | None = None, seed: int | None = None,
            max_depth: int | None = None, direct: int | None = None, indirect: int | None = None,
            hemisphere: str | None = None, rfilter: ReconstructionFilter | str | None = None,
-           progress: bool = False, time_limit: float | None = None) -> RenderResult:
+           progress: bool = False, time_limit: float | None = None,
+           geometry: SceneGeometry | None = None) -> RenderResult:
     """Renders `scene` (a Scene, or the path of a scene file, loaded with its defaults).
 
     Unset arguments take the scene file's values (spp, seed, max_depth, rfilter); `direct`, `indirect`
@@ -64,7 +65,9 @@ def render(scene: Scene | str | Path, estimator: str = "path", spp: int | None =
     `rfilter` is a ReconstructionFilter or the name of one with Mitsuba's defaults. `time_limit`
     (seconds) renders one sample per pixel per pass and stops after the last whole pass that fits:
     `result.spp` says how many were rendered. Arguments out of their domain raise SettingsError and a
-    render that cannot fit in memory PlanError, both before the first ray."""
+    render that cannot fit in memory PlanError, both before the first ray. `geometry`: a SceneGeometry of
+    this same scene to reuse across renders (built here when None; a mesh's BVH is reused in any case,
+    tracer.bvh_cache)."""
     if isinstance(scene, (str, Path)):
         from .mitsuba_xml import load_scene
         scene = load_scene(scene)
@@ -83,7 +86,9 @@ def render(scene: Scene | str | Path, estimator: str = "path", spp: int | None =
     cam = scene.camera
     film = Film(cam.width, cam.height, rfilter)
     plan = make_plan(cam.width, cam.height, spp, estimator, film.border, one_spp_passes=time_limit is not None)
-    geo = SceneGeometry(scene)
+    if geometry is not None and geometry.scene is not scene:
+        raise SettingsError("geometry must be a SceneGeometry of the scene rendered")
+    geo = SceneGeometry(scene) if geometry is None else geometry
     rays = 0
 
     def one_pass(index: int, pass_spp: int) -> None:

@@ -18,6 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from tracer.estimators import REPORT_DEPTH_OFFSET
+
+from .mesh_scene import write_mesh_scene
 from .scene_variants import write_variant
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -26,6 +29,10 @@ REPEATS = 3
 # The report's own render times (its Tables 1 and 2, 600 x 600, one ray per pixel, M = 8).
 REPORT_TABLE1 = {8: 120.93, 16: 208.80, 64: 751.50}
 REPORT_TABLE2 = {1: 27.97, 2: 208.80, 3: 1554.18}
+MESH_FOLDER = ROOT / ".cache" / "bench"      # the generated mesh scenes (validation/mesh_scene.py)
+MESH_TRIANGLES = (250_000, 1_000_000)
+MESH_SPP, MESH_DEPTH, MESH_SIZE = 64, 5, 256
+WHOLE_RUNS = 3                                  # whole-process runs of each renderer, alternated
 
 
 # ---- child side --------------------------------------------------------------------------------------
@@ -38,6 +45,7 @@ def _child(job: dict) -> dict:
         start = time.perf_counter()
         scene = mi.load_file(job["scene"], **job["params"])   # builds Embree's BVH
         setup = time.perf_counter() - start
+        split = {}
 
         def run(seed):
             start = time.perf_counter()
@@ -45,26 +53,24 @@ def _child(job: dict) -> dict:
             return image[..., :3], time.perf_counter() - start, 0.0, 0
     else:
         import tracer
+        from tracer.geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneGeometry
         from tracer.rendering import render
 
-        import tracer.geometry
-
+        options = {}
         if job.get("bvh_threshold") is not None:
-            tracer.geometry.BVH_THRESHOLD = job["bvh_threshold"]
+            options["bvh_threshold"] = job["bvh_threshold"]
         if job.get("generic"):  # every material's code in the kernel, whatever the scene holds
-            init = tracer.geometry.SceneGeometry.__init__
-
-            def generic_init(self, scene):
-                init(self, scene)
-                self.kinds = {tracer.geometry.DIFFUSE, tracer.geometry.CONDUCTOR, tracer.geometry.DIELECTRIC}
-            tracer.geometry.SceneGeometry.__init__ = generic_init
+            options["material_kinds"] = {DIFFUSE, CONDUCTOR, DIELECTRIC}
         start = time.perf_counter()
         scene = tracer.load_scene(job["scene"], **job["params"])
-        tracer.geometry.SceneGeometry(scene)   # as render() does: builds the BVH
+        loaded = time.perf_counter()
+        geometry = SceneGeometry(scene, **options)   # builds the BVH, reused by every render below
         setup = time.perf_counter() - start
+        split = {"load_seconds": loaded - start, "geometry_seconds": setup - (loaded - start),
+                 "triangles": geometry.n_tris}
 
         def run(seed):
-            r = render(scene, job["estimator"], seed=seed, **job["options"])
+            r = render(scene, job["estimator"], seed=seed, geometry=geometry, **job["options"])
             return r.image, r.render_seconds, r.compile_seconds, r.rays
 
     first = run(0)
@@ -74,6 +80,11 @@ def _child(job: dict) -> dict:
     out = {"setup_seconds": setup, "first_seconds": first[1] + first[2], "first_compile": first[2],
            "seconds": [r[1] for r in runs],
            "rays": runs[-1][3], "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+    out.update(split)
+    if job.get("profile"):
+        from .mesh_profile import profile_mitsuba, profile_tracer
+
+        out["profile"] = profile_mitsuba(mi, scene) if job["renderer"] == "mitsuba" else profile_tracer(geometry)
     if job.get("save_image"):
         np.save(job["save_image"], runs[-1][0])
     return out
@@ -137,7 +148,7 @@ def report_tables(progress) -> dict:
     rows = {}
     for label, n, depth in [("N=8", 8, 2), ("N=16", 16, 2), ("N=64", 64, 2), ("D=1", 16, 1), ("D=3", 16, 3)]:
         progress(f"report estimator {label}")
-        job = _tracer("report", spp=1, direct=n, indirect=8, max_depth=depth + 2)
+        job = _tracer("report", spp=1, direct=n, indirect=8, max_depth=depth + REPORT_DEPTH_OFFSET)
         job["repeats"] = 1 if depth == 3 or n == 64 else REPEATS
         rows[label] = measure(job)
     rows["D=2"] = rows["N=16"]
@@ -260,6 +271,58 @@ def _triangles(scene: Path) -> int:
     return tracer.load_scene(scene).triangle_count
 
 
+def meshes(progress) -> dict:
+    """The project's multi-mesh scene (validation/mesh_scene.py) at MESH_TRIANGLES: render only and setup
+    (in one child per renderer, with the ray-query profile of validation/mesh_profile.py), and the whole
+    process (`tracer render` against the `mitsuba` command, same XML and defines, alternated)."""
+    rows = {}
+    for n in MESH_TRIANGLES:
+        progress(f"mesh scene of {n:,} triangles: writing")
+        scene = write_mesh_scene(MESH_FOLDER, n)
+        row = {}
+        for name, job in (("tracer", _tracer("path", size=MESH_SIZE, scene=scene, spp=MESH_SPP, max_depth=MESH_DEPTH)),
+                          ("Mitsuba", _mitsuba(MESH_SPP, MESH_DEPTH, size=MESH_SIZE, scene=scene))):
+            progress(f"mesh scene of {n:,} triangles: {name}, render only and profile")
+            job["profile"] = True
+            row[name] = measure(job)
+        row["triangles"] = row["tracer"]["triangles"]
+        row["whole"] = whole_process(scene, lambda what: progress(f"mesh scene of {n:,} triangles: {what}"))
+        rows[str(n)] = row
+    return rows
+
+
+def whole_process(scene: Path, progress) -> dict:
+    """Wall seconds of `tracer render` (without and with a warm on-disk BVH cache) and of the `mitsuba`
+    command on `scene` (-D spp, max_depth, width, height), WHOLE_RUNS each, alternated in turn."""
+    defines = [f"spp={MESH_SPP}", f"max_depth={MESH_DEPTH}", f"width={MESH_SIZE}", f"height={MESH_SIZE}"]
+    defines = [x for d in defines for x in ("-D", d)]
+    times: dict[str, list[float]] = {"tracer": [], "tracer, BVH from disk cache": [], "Mitsuba": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        cache = Path(tmp) / "bvh"
+        commands = {
+            "tracer": [sys.executable, "-m", "tracer.cli", "render", str(scene), "-o", f"{tmp}/t.exr", "--no-png",
+                       *defines],
+            "Mitsuba": [str(Path(sys.executable).parent / "mitsuba"), "-m", "llvm_ad_rgb", *defines,
+                        "-o", f"{tmp}/m.exr", str(scene)],
+        }
+        commands["tracer, BVH from disk cache"] = commands["tracer"]
+        env = {name: dict(os.environ) for name in times}
+        for e in env.values():
+            e.pop("TRACER_BVH_CACHE", None)
+        env["tracer, BVH from disk cache"]["TRACER_BVH_CACHE"] = str(cache)
+        subprocess.run([sys.executable, "-c", "import sys, tracer; from tracer.geometry import SceneGeometry; "
+                        "SceneGeometry(tracer.load_scene(sys.argv[1]))", str(scene)],
+                       cwd=ROOT, env=env["tracer, BVH from disk cache"], check=True)   # fills the cache
+        names = list(times)
+        for k in range(WHOLE_RUNS):
+            for name in names[k % len(names):] + names[:k % len(names)]:   # each renderer first in turn
+                progress(f"whole process, {name}, run {k + 1}")
+                start = time.perf_counter()
+                subprocess.run(commands[name], cwd=ROOT, env=env[name], check=True, capture_output=True)
+                times[name].append(time.perf_counter() - start)
+    return {name: {"seconds": t, "median": statistics.median(t)} for name, t in times.items()}
+
+
 def main_child(arg: str) -> None:
     print(json.dumps(_child(json.loads(arg))))
 
@@ -268,16 +331,46 @@ if __name__ == "__main__" and len(sys.argv) > 2 and sys.argv[1] == "--child":
     main_child(sys.argv[2])
 
 
-def run(out: Path, quick: bool = False) -> str:
-    """Every measurement, then reports/performance.md and its plot; returns the markdown."""
+def sections() -> dict:
+    """The bench's sections by name, in the order they run."""
+    return {"side_by_side": lambda out, progress: side_by_side(out, progress),
+            "tables": lambda out, progress: report_tables(progress),
+            "ceiling": lambda out, progress: ceiling(progress),
+            "cold": lambda out, progress: cold_start(progress),
+            "specialisation": lambda out, progress: specialisation(progress),
+            "scaling": lambda out, progress: scaling(progress),
+            "meshes": lambda out, progress: meshes(progress)}
+
+
+def run(out: Path, only: list[str] | None = None) -> str:
+    """Every measurement (or only the sections named, the others kept from the previous run's
+    performance.json), then reports/performance.md and its plot; returns the markdown."""
+    from datetime import datetime, timezone
+
+    from tracer.errors import UserError
+
     from .plots import performance_scaling
 
     out.mkdir(parents=True, exist_ok=True)
     progress = lambda what: print(f"bench: {what}", file=sys.stderr, flush=True)  # noqa: E731
-    results = {"side_by_side": side_by_side(out, progress), "tables": report_tables(progress),
-               "ceiling": ceiling(progress), "cold": cold_start(progress), "specialisation": specialisation(progress),
-               "scaling": scaling(progress)}
-    (out / "performance.json").write_text(json.dumps(results, indent=1))
+    previous = out / "performance.json"
+    results = json.loads(previous.read_text()) if only and previous.exists() else {}
+    unknown = set(only or ()) - set(sections())
+    if unknown:
+        raise UserError(f"unknown bench sections {sorted(unknown)}; the sections are {list(sections())}")
+    missing = [name for name in sections() if name not in results and name not in (only or ())]
+    if only and missing:
+        raise UserError(f"{previous} has no {missing}: run those sections too")
+    today = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    results.setdefault("when", {})
+    results.setdefault("load", {})
+    for name, section in sections().items():
+        if not only or name in only:
+            before = os.getloadavg()[0]
+            results[name] = section(out, progress)
+            results["when"][name] = today
+            results["load"][name] = [before, os.getloadavg()[0]]   # other work on the machine, 1-min averages
+    previous.write_text(json.dumps(results, indent=1))
     performance_scaling(results["scaling"], out / "performance_scaling.png")
     text = markdown(results)
     (out / "performance.md").write_text(text)
@@ -301,11 +394,20 @@ def _machine() -> str:
 def markdown(r: dict) -> str:
     sbs, tables, scaling = r["side_by_side"], r["tables"], r["scaling"]
     ours, theirs = sbs["tracer path"], sbs["Mitsuba path"]
+    when = r.get("when", {})
+    dates = sorted(set(when.get(name, "an earlier run") for name in sections()))
+    provenance = (f"all numbers from one run, {dates[0]}" if len(dates) == 1 else
+                  "sections from separate runs: " + "; ".join(f"{name} {when.get(name, 'an earlier run')}"
+                                                               for name in sections()))
+    load = r.get("load", {})
     lines = [
         "# Performance: the tracer and Mitsuba side by side",
         "",
-        "Generated by `validate bench` (all numbers from one run; medians of "
+        f"Generated by `validate bench` ({provenance}; medians of "
         f"{REPEATS} renders after a warm-up render, each configuration in its own process). Machine: {_machine()}.",
+        "Machine load (1-minute load average at the start and end of each section, "
+        f"{os.cpu_count()} cores): " + ("; ".join(f"{name} {a:.1f}–{b:.1f}" for name, (a, b) in load.items())
+                                        or "not recorded") + ".",
         "Timings are render time without kernel compilation; peak memory is the process's maximum resident set.",
         "",
         "## Path tracing: the tracer against Mitsuba's `path` (hexagon_room, 600 x 600, 64 spp, max_depth 5)",
@@ -395,4 +497,71 @@ def markdown(r: dict) -> str:
               f"{smallest}-triangle scene (each with its faster kernel; the tracer uses the BVH above "
               f"`tracer.geometry.BVH_THRESHOLD` = {BVH_THRESHOLD} triangles). Mitsuba, whose meshes Embree traces, "
               f"takes {by_n[largest]['Mitsuba'] / by_n[smallest]['Mitsuba']:.1f}x.", ""]
+    lines += mesh_markdown(r["meshes"])
     return "\n".join(lines)
+
+
+def mesh_markdown(rows: dict) -> list[str]:
+    """The multi-mesh scene's section of the report."""
+    lines = [
+        "## Meshes: the project's multi-mesh scene",
+        "",
+        "The Cornell box's walls and light around three smooth meshes (angle-weighted vertex normals): a diffuse "
+        "torus (40% of the triangles), a mirror (conductor) blob (40%) and a glass (dielectric) ellipsoid (20%), "
+        "generated by `validation/mesh_scene.py` into `.cache/bench`. Path, "
+        f"{MESH_SIZE} x {MESH_SIZE}, {MESH_SPP} spp, max_depth {MESH_DEPTH}. Render only: median of {REPEATS} "
+        "renders after a warm-up, scene loaded once. Setup: the tracer's `load_scene` (XML, OBJ, normals) and "
+        "`SceneGeometry` (BVH build, tables), Mitsuba's `load_file` (which builds Embree's BVH). Whole process: "
+        f"`tracer render` and `mitsuba -m llvm_ad_rgb`, same XML, `-D spp={MESH_SPP} -D max_depth={MESH_DEPTH} "
+        f"-D width={MESH_SIZE} -D height={MESH_SIZE}`, wall time of the command including writing the EXR, "
+        f"median of {WHOLE_RUNS} runs each, the renderers alternated (each first in turn); the tracer also with a "
+        "warm on-disk BVH cache (`TRACER_BVH_CACHE`). Ratios: tracer / Mitsuba (below 1: the tracer is faster).",
+        "",
+        "| triangles | render: tracer [s] | Mitsuba [s] | ratio | setup: tracer [s] | Mitsuba [s] | ratio "
+        "| whole process: tracer [s] | tracer, cached BVH [s] | Mitsuba [s] | ratio (uncached, cached) |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for row in rows.values():
+        t, m, w = row["tracer"], row["Mitsuba"], row["whole"]
+        wt, wc, wm = w["tracer"]["median"], w["tracer, BVH from disk cache"]["median"], w["Mitsuba"]["median"]
+        lines.append(f"| {row['triangles']:,} | {t['median']:.2f} | {m['median']:.2f} | {t['median'] / m['median']:.2f} "
+                     f"| {t['setup_seconds']:.2f} | {m['setup_seconds']:.2f} | {t['setup_seconds'] / m['setup_seconds']:.2f} "
+                     f"| {wt:.2f} | {wc:.2f} | {wm:.2f} | {wt / wm:.2f}, {wc / wm:.2f} |")
+    lines += ["", "### Where the time goes", "",
+              "Ray queries alone (no shading): 2^20 rays from random points inside the meshes' bounding box in "
+              "random directions, closest hit (the tracer's `closest_hit`, Mitsuba's `ray_intersect_preliminary`) "
+              "and the same rays as shadow rays of random length (`occluded`, `ray_test`); median of 5 launches. "
+              "BVH work per closest-hit ray is counted by a copy of the traversal that counts "
+              "(`BVHKernel.closest_hit_work`).",
+              ""]
+    header = "| | " + " | ".join(f"tracer, {row['triangles']:,} | Mitsuba, {row['triangles']:,}" for row in rows.values()) + " |"
+    lines += [header, "|---|" + "---:|" * (2 * len(rows))]
+
+    def cells(f_tracer, f_mitsuba) -> str:
+        out = []
+        for row in rows.values():
+            for f, x in ((f_tracer, row["tracer"]), (f_mitsuba, row["Mitsuba"])):
+                out.append(f(x) if f is not None else "–")
+        return " | ".join(out)
+
+    rate = lambda key: lambda x: f"{x['profile']['rays'] / x['profile'][key] / 1e6:.1f} M"  # noqa: E731
+    lines += [
+        "| scene loading (XML, OBJ, normals) [s] | " + cells(lambda x: f"{x['load_seconds']:.2f}",
+                                                         lambda x: f"{x['setup_seconds']:.2f} (with BVH)") + " |",
+        "| BVH build alone [s] | " + cells(lambda x: f"{x['profile']['bvh_build_seconds']:.2f}", None) + " |",
+        "| geometry: BVH (or cache hit), tables [s] | " + cells(lambda x: f"{x['geometry_seconds']:.2f}", None) + " |",
+        "| first render: kernel compile (Dr.Jit's kernel cache as the bench left it) [s] | " + cells(lambda x: f"{x['first_compile']:.2f}", None) + " |",
+        "| render [s] | " + cells(lambda x: f"{x['median']:.2f}", lambda x: f"{x['median']:.2f}") + " |",
+        "| rays traced per render (closest hit + shadow) | " + cells(lambda x: f"{x['rays'] / 1e6:.1f} M", None) + " |",
+        "| closest-hit queries alone [rays/s] | " + cells(rate("closest_seconds"), rate("closest_seconds")) + " |",
+        "| shadow queries alone [rays/s] | " + cells(rate("shadow_seconds"), rate("shadow_seconds")) + " |",
+        "| random rays that hit | " + cells(lambda x: f"{x['profile']['hit_fraction']:.2f}",
+                                            lambda x: f"{x['profile']['hit_fraction']:.2f}") + " |",
+        "| nodes visited per closest-hit ray (mean, p90) | "
+        + cells(lambda x: f"{x['profile']['steps_mean']:.0f}, {x['profile']['steps_p90']:.0f}", None) + " |",
+        "| triangles tested per closest-hit ray (mean, p90) | "
+        + cells(lambda x: f"{x['profile']['tests_mean']:.0f}, {x['profile']['tests_p90']:.0f}", None) + " |",
+        "| BVH inner nodes, depth | " + cells(lambda x: f"{x['profile']['bvh_rows']:,}, {x['profile']['bvh_depth']}", None) + " |",
+        "| render: rays traced per second | " + cells(lambda x: f"{x['rays'] / x['median'] / 1e6:.1f} M", None) + " |",
+        ""]
+    return lines

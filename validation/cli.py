@@ -49,6 +49,9 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--spp", type=int, default=64, help="samples per pixel of each pass")
     b = sub.add_parser("bench", help="time the tracer and Mitsuba side by side: reports/performance.md")
     b.add_argument("--output", "-o", type=Path, default=Path("reports"))
+    b.add_argument("--only", nargs="+", metavar="SECTION", help="run only these sections (side_by_side, tables, "
+                   "ceiling, cold, specialisation, scaling, meshes), keeping the others from the previous "
+                   "performance.json; the report says which run each section comes from")
     q = sub.add_parser("faults", help="write reports/faults.md: which injected faults the test catches at which spp")
     q.add_argument("--output", "-o", type=Path, default=Path("reports/faults.md"))
     m = sub.add_parser("improvements", help="write reports/<scene>/improvements.md: filters, adaptive sampling, "
@@ -227,7 +230,7 @@ def _run(args) -> int:
     if args.command == "bench":
         from .benchmark import run
 
-        print(run(args.output))
+        print(run(args.output, args.only))
         return 0
     if args.command == "faults":
         from .power import table

@@ -1,0 +1,93 @@
+"""Built BVHs kept for reuse, keyed by the triangles' content: in this process (the last few), and on disk
+in a folder when one is given (`TRACER_BVH_CACHE`, or the `folder` argument).
+
+The key is a BLAKE2 hash of the triangle vertices' bytes, their shape and dtype, the leaf size and this
+module's FORMAT, so a mesh that changes gets a new key. A file is written to a temporary beside its target
+and moved into place (a reader never sees half a file) and checked on load: its stored key, the node
+table's and the order's shapes and types, and that the order is a permutation of the triangles; a file
+that fails is rebuilt and overwritten.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import zipfile
+from collections import OrderedDict
+from pathlib import Path
+
+import numpy as np
+
+from .bvh import LEAF_BIT, LEAF_SIZE, Layout, layout
+
+FORMAT = 1            # bump when Layout or the build changes
+IN_MEMORY = 4         # layouts kept in this process
+ENV = "TRACER_BVH_CACHE"
+_memory: OrderedDict[str, Layout] = OrderedDict()
+
+
+def key(tri_vertices: np.ndarray) -> str:
+    """The cache key of (n, 3, 3) triangle vertices."""
+    a = np.ascontiguousarray(tri_vertices)
+    h = hashlib.blake2b(f"{FORMAT} {LEAF_SIZE} {a.dtype.str} {a.shape}".encode(), digest_size=20)
+    h.update(a.data)
+    return h.hexdigest()
+
+
+def cached_layout(tri_vertices: np.ndarray, folder: Path | str | None = None) -> Layout:
+    """The BVH Layout of these triangles: from this process's cache, else from `folder` (default: the
+    folder in $TRACER_BVH_CACHE, none if unset), else built (and then stored in both)."""
+    k = key(tri_vertices)
+    if k in _memory:
+        _memory.move_to_end(k)
+        return _memory[k]
+    folder = (os.environ.get(ENV) or None) if folder is None else folder
+    path = Path(folder) / f"{k}.npz" if folder else None
+    tables = _load(path, k, len(tri_vertices)) if path is not None else None
+    if tables is None:
+        tables = layout(tri_vertices)
+        if path is not None:
+            _save(path, k, tables)
+    _memory[k] = tables
+    while len(_memory) > IN_MEMORY:
+        _memory.popitem(last=False)
+    return tables
+
+
+def clear_memory() -> None:
+    """Forgets the layouts kept in this process."""
+    _memory.clear()
+
+
+def _save(path: Path, k: str, tables: Layout) -> None:
+    """Writes atomically; a folder that cannot be written only costs the cache."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as f:
+            np.savez(f, key=np.array(k), nodes=tables.nodes, order=tables.order, rows=tables.rows,
+                     root=tables.root, stack_size=np.array(tables.stack_size))
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+
+
+def _load(path: Path, k: str, triangles: int) -> Layout | None:
+    """The stored Layout, or None when the file is missing, unreadable or fails a check."""
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            if str(f["key"]) != k:
+                return None
+            nodes, order, rows, root = f["nodes"], f["order"], f["rows"], f["root"]
+            stack_size = int(f["stack_size"])
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):   # missing, truncated, not an npz
+        return None
+    ok = (nodes.dtype == np.uint32 and nodes.ndim == 2 and nodes.shape[1] == 8 and rows.shape == (len(nodes),)
+          and root.shape == (2, 3) and np.isfinite(root).all() and 0 < stack_size < 64
+          and order.shape == (triangles,) and order.dtype.kind == "i" and triangles > 0
+          and order.min() >= 0 and order.max() < triangles and (np.bincount(order, minlength=triangles) == 1).all())
+    if ok:   # every link names a node row, or a leaf within the triangles
+        link = nodes[:, [3, 7]].astype(np.int64)
+        leaf = link >= LEAF_BIT
+        word = link & (LEAF_BIT - 1)
+        ok = bool(np.all(np.where(leaf, (word >> 3) + (word & 7) <= triangles, link < len(nodes))))
+    return Layout(nodes, order, rows, root, stack_size) if ok else None

@@ -1,0 +1,96 @@
+"""Where a mesh scene's ray time goes, for `validate bench`: the tracer's closest-hit and shadow-ray queries
+alone (no shading) on the same random rays as Mitsuba's (Embree's) `ray_intersect_preliminary` and
+`ray_test`, and the tracer's BVH work per ray (nodes visited, triangles tested; a counting copy of the
+traversal, tracer.bvh.BVHKernel.closest_hit_work).
+
+The rays start uniformly inside the scene's bounding box, in uniformly random directions; shadow rays are
+the same rays cut to a length uniform in (0, half the box's diagonal). Each query is launched LAUNCHES
+times after a warm-up launch (which compiles it); the median counts.
+"""
+from __future__ import annotations
+
+import statistics
+import time
+
+import numpy as np
+
+RAYS = 1 << 20
+LAUNCHES = 5
+
+
+def random_rays(lo: np.ndarray, hi: np.ndarray, n: int = RAYS, seed: int = 0):
+    """(origins, unit directions, shadow-ray lengths), float32 (n, 3), (n, 3), (n,)."""
+    rng = np.random.default_rng(seed)
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    o = lo + (hi - lo) * rng.uniform(0.02, 0.98, (n, 3))
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    dist = rng.uniform(0, 0.5 * np.linalg.norm(hi - lo), n)
+    return o.astype(np.float32), d.astype(np.float32), dist.astype(np.float32)
+
+
+def _timed(launch) -> float:
+    """Median seconds of LAUNCHES launches after a warm-up one."""
+    import drjit as dr
+
+    seconds = []
+    for k in range(LAUNCHES + 1):
+        start = time.perf_counter()
+        dr.eval(*launch())
+        dr.sync_thread()
+        seconds.append(time.perf_counter() - start)
+    return statistics.median(seconds[1:])
+
+
+def profile_tracer(geometry) -> dict:
+    """Rays per second of the tracer's queries and its BVH work per closest-hit ray."""
+    from tracer.jit import NO_PRIM, Array3f, Float, UInt32
+
+    from tracer.bvh import layout
+
+    points = geometry.tri_vertices.reshape(-1, 3)
+    o, d, dist = random_rays(points.min(axis=0), points.max(axis=0))
+    o, d, dist = Array3f(*o.T), Array3f(*d.T), Float(dist)
+    none = UInt32(NO_PRIM)
+
+    def closest():
+        h = geometry.closest_hit(o, d, 0.0, float("inf"), none)
+        return h.t, h.prim
+
+    out = {"rays": RAYS, "closest_seconds": _timed(closest),
+           "shadow_seconds": _timed(lambda: (geometry.occluded(o, d, dist, none, none),))}
+    hit = closest()[1]
+    out["hit_fraction"] = float(np.mean(hit.numpy() != NO_PRIM))
+    if geometry.bvh is not None:
+        start = time.perf_counter()
+        layout(geometry.tri_vertices)
+        out["bvh_build_seconds"] = time.perf_counter() - start
+        steps, tests = (a.numpy() for a in geometry.bvh.closest_hit_work(o, d))
+        out.update(steps_mean=float(steps.mean()), steps_p90=float(np.percentile(steps, 90)),
+                   tests_mean=float(tests.mean()), tests_p90=float(np.percentile(tests, 90)),
+                   bvh_rows=len(geometry.bvh.rows), bvh_depth=geometry.bvh.stack_size)
+    return out
+
+
+def profile_mitsuba(mi, scene) -> dict:
+    """Rays per second of Mitsuba's preliminary intersection and shadow test on the same rays."""
+    bbox = scene.bbox()
+    mesh_lo = np.full(3, np.inf)
+    mesh_hi = -mesh_lo
+    for shape in scene.shapes():
+        if shape.is_mesh() and shape.face_count() > 2:   # the meshes (rectangles are 2 triangles)
+            b = shape.bbox()
+            mesh_lo, mesh_hi = np.minimum(mesh_lo, np.array(b.min)), np.maximum(mesh_hi, np.array(b.max))
+    if not np.isfinite(mesh_lo).all():
+        mesh_lo, mesh_hi = np.array(bbox.min), np.array(bbox.max)
+    o, d, dist = random_rays(mesh_lo, mesh_hi)
+    origin, direction = mi.Point3f(*o.T), mi.Vector3f(*d.T)
+    ray, short = mi.Ray3f(origin, direction), mi.Ray3f(origin, direction, mi.Float(dist))
+
+    def closest():
+        pi = scene.ray_intersect_preliminary(ray)
+        return pi.t, pi.prim_index
+
+    return {"rays": RAYS, "closest_seconds": _timed(closest),
+            "shadow_seconds": _timed(lambda: (scene.ray_test(short),)),
+            "hit_fraction": float(np.mean(np.isfinite(np.array(closest()[0]))))}
