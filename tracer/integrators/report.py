@@ -41,6 +41,17 @@ class Wavefront:
         return dr.width(self.sample)
 
 
+@dataclass
+class Vertices:
+    """Where one level's rays ended, classified: the surface found, its shading normal turned towards the
+    incoming ray, its material kind, and whether it is a diffuse vertex lit from that side."""
+
+    surf: Surface
+    ns: Array3f
+    kind: UInt32
+    diffuse: Bool
+
+
 def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int, settings: BranchingEstimator,
                 radiance: Float, seed: int) -> tuple[Wavefront | None, int]:
     """Intersects one level (its rays end at path vertex `vertex`), adds its emission and eq. 10 estimates
@@ -60,7 +71,7 @@ def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int
     rays = len(wave)
     if geo.has_lights and DIFFUSE in geo.kinds:
         rays += _shadow_rays(geo, surf, ns, diffuse, wave, settings.direct, radiance, seed)
-    return _spawn(geo, surf, ns, diffuse, kind, wave, vertex, max_depth, settings, seed), rays
+    return _spawn(geo, Vertices(surf, ns, kind, diffuse), wave, vertex, max_depth, settings, seed), rays
 
 
 def _rng(n: int, seed: int, stream: int) -> PCG32:
@@ -109,9 +120,11 @@ def hemisphere_sample(albedo: Array3f, u1: Float, u2: Float, hemisphere: str) ->
     return local, albedo * (2.0 * local.z)                               # (rho/pi) cos / (1/(2 pi))
 
 
-def _spawn(geo, surf, ns, diffuse, kind, wave, vertex, max_depth, settings, seed) -> Wavefront | None:
+def _spawn(geo, at: Vertices, wave: Wavefront, vertex: int, max_depth: int, settings: BranchingEstimator,
+           seed: int) -> Wavefront | None:
     """The next level: M hemisphere rays per diffuse vertex (while their vertex can still reach a light
     within max_depth), the mirror's reflection, glass's reflection and refraction."""
+    surf, ns, kind, diffuse = at.surf, at.ns, at.kind, at.diffuse
     slots = settings.slots
     lane = dr.arange(UInt32, len(wave) * slots)
     parent, slot = lane // slots, lane % slots
