@@ -16,6 +16,24 @@ def mitsuba_passes(scene: str, passes: int, spp: int, **params) -> np.ndarray:
     return render_passes(SCENES / scene, passes, spp, seed=12345, **params)
 
 
+PASSES, SIZE, SPP = 16, 32, 64                 # the plugin agreement tests' design: the check's equal budgets
+REPORT = dict(spp=2, direct=4, indirect=4)     # per pass, the branching estimator (against SPP Mitsuba samples)
+
+
+def plugin_passes(scene_name: str, estimator: str, max_depth: int, seed: int, edit=None) -> np.ndarray:
+    """PASSES tracer passes of mitsuba_scenes/scene_name at SIZE x SIZE (pass k with seed `seed + k`);
+    `edit(scene)` changes the loaded scene first (a fault the test must catch)."""
+    import tracer
+    from tracer.rendering import render
+
+    scene = tracer.load_scene(SCENES / scene_name, width=SIZE, height=SIZE)
+    if edit is not None:
+        edit(scene)
+    opts = dict(REPORT) if estimator == "report" else dict(spp=SPP)
+    return np.stack([render(scene, estimator, seed=seed + k, max_depth=max_depth, **opts).image
+                     for k in range(PASSES)])
+
+
 @pytest.fixture
 def scenes() -> Path:
     return SCENES

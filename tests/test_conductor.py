@@ -9,16 +9,13 @@ import tracer
 from tracer import bsdf, geometry
 from tracer.ior import CONDUCTORS
 from tracer.jit import Array3f, Float
-from tracer.rendering import render
 from validation.stats import compare_passes
 
-from .conftest import SCENES, mitsuba_passes
+from .conftest import PASSES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import mi  # noqa: F401  (the fixture)
 from .test_xml_loader import write_scene
 
 from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
-PASSES, SIZE, SPP = 16, 32, 64
-REPORT = dict(spp=2, direct=4, indirect=4)
 
 
 def test_named_conductors_are_mitsubas(mi):
@@ -59,10 +56,7 @@ def test_perfect_mirror_reflects_everything():
 
 
 def tracer_passes(estimator: str, max_depth: int) -> np.ndarray:
-    scene = tracer.load_scene(SCENES / "conductors.xml", width=SIZE, height=SIZE)
-    opts = dict(REPORT) if estimator == "report" else dict(spp=SPP)
-    return np.stack([render(scene, estimator, seed=4000 + k, max_depth=max_depth, **opts).image
-                     for k in range(PASSES)])
+    return plugin_passes("conductors.xml", estimator, max_depth, 4000)
 
 
 @pytest.mark.slow

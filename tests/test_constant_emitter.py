@@ -13,19 +13,16 @@ from tracer.geometry import SceneGeometry
 from tracer.rendering import render
 from validation.stats import compare_passes
 
-from .conftest import SCENES, mitsuba_passes
+from .conftest import PASSES, SCENES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import scene_errors
 from .test_xml_loader import write_scene
 
 from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
-PASSES, SIZE, SPP = 16, 32, 64
 SCENE = "constant_environment.xml"
 
 
 def tracer_passes(max_depth: int) -> np.ndarray:
-    scene = tracer.load_scene(SCENES / SCENE, width=SIZE, height=SIZE)
-    return np.stack([render(scene, "path", seed=5000 + k, max_depth=max_depth, spp=SPP).image
-                     for k in range(PASSES)])
+    return plugin_passes(SCENE, "path", max_depth, 5000)
 
 
 @pytest.mark.slow

@@ -5,27 +5,21 @@ false-positive rate ALPHA per comparison; the same test failing when flip_normal
 import numpy as np
 import pytest
 
-import tracer
-from tracer.rendering import render
 from validation.stats import compare_passes
 
-from .conftest import SCENES, mitsuba_passes
+from .conftest import PASSES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import scene_errors
 from .test_xml_loader import write_scene
 
 from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
-PASSES, SIZE, SPP = 16, 32, 64
-REPORT = dict(spp=2, direct=4, indirect=4)
 SCENE = "cylinders.xml"
 
 
 def tracer_passes(estimator: str, max_depth: int, unflip: bool = False) -> np.ndarray:
-    scene = tracer.load_scene(SCENES / SCENE, width=SIZE, height=SIZE)
-    for c in scene.cylinders:
-        c.flipped = c.flipped and not unflip
-    opts = dict(REPORT) if estimator == "report" else dict(spp=SPP)
-    return np.stack([render(scene, estimator, seed=9700 + k, max_depth=max_depth, **opts).image
-                     for k in range(PASSES)])
+    def unflipped(scene):
+        for c in scene.cylinders:
+            c.flipped = False
+    return plugin_passes(SCENE, estimator, max_depth, 9700, unflipped if unflip else None)
 
 
 @pytest.mark.slow

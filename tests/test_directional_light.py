@@ -6,27 +6,21 @@ false-positive rate ALPHA per comparison; the same test failing with the light r
 import numpy as np
 import pytest
 
-import tracer
-from tracer.rendering import render
 from validation.stats import compare_passes
 
-from .conftest import SCENES, mitsuba_passes
+from .conftest import PASSES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import scene_errors
 from .test_xml_loader import write_scene
 
 from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
-PASSES, SIZE, SPP = 16, 32, 64
-REPORT = dict(spp=2, direct=4, indirect=4)
 SCENE = "directional_lights.xml"
 
 
 def tracer_passes(estimator: str, max_depth: int, reverse: bool = False) -> np.ndarray:
-    scene = tracer.load_scene(SCENES / SCENE, width=SIZE, height=SIZE)
-    for light in scene.directional_lights:
-        light.direction = -light.direction if reverse else light.direction
-    opts = dict(REPORT) if estimator == "report" else dict(spp=SPP)
-    return np.stack([render(scene, estimator, seed=9600 + k, max_depth=max_depth, **opts).image
-                     for k in range(PASSES)])
+    def reversed_lights(scene):
+        for light in scene.directional_lights:
+            light.direction = -light.direction
+    return plugin_passes(SCENE, estimator, max_depth, 9600, reversed_lights if reverse else None)
 
 
 @pytest.mark.slow

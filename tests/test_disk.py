@@ -7,25 +7,19 @@ import numpy as np
 import pytest
 
 import tracer
-from tracer.rendering import render
 from tracer.scene import Rectangle
 from validation.stats import compare_passes
 
-from .conftest import SCENES, mitsuba_passes
+from .conftest import PASSES, SCENES, SIZE, SPP, mitsuba_passes, plugin_passes
 
 from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
-PASSES, SIZE, SPP = 16, 32, 64
-REPORT = dict(spp=2, direct=4, indirect=4)
 SCENE = "disks.xml"
 
 
 def tracer_passes(estimator: str, max_depth: int, squares: bool = False) -> np.ndarray:
-    scene = tracer.load_scene(SCENES / SCENE, width=SIZE, height=SIZE)
-    if squares:
+    def as_squares(scene):
         scene.rectangles = [Rectangle(r.to_world, r.bsdf, r.radiance, r.name) for r in scene.rectangles]
-    opts = dict(REPORT) if estimator == "report" else dict(spp=SPP)
-    return np.stack([render(scene, estimator, seed=9500 + k, max_depth=max_depth, **opts).image
-                     for k in range(PASSES)])
+    return plugin_passes(SCENE, estimator, max_depth, 9500, as_squares if squares else None)
 
 
 @pytest.mark.slow

@@ -9,15 +9,13 @@ import pytest
 import tracer
 from tracer.geometry import SceneGeometry, _EnvmapKernel
 from tracer.jit import Array3f, Float
-from tracer.rendering import render
 from validation.stats import compare_passes
 
-from .conftest import SCENES, mitsuba_passes
+from .conftest import PASSES, SCENES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import mi, scene_errors  # noqa: F401  (mi: the fixture)
 from .test_xml_loader import write_scene
 
 from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
-PASSES, SIZE, SPP = 16, 32, 64
 SCENE = "environment_map.xml"
 
 
@@ -60,9 +58,7 @@ def test_density_integrates_to_one_and_is_the_sampled_one(geo):
 
 
 def tracer_passes(max_depth: int) -> np.ndarray:
-    scene = tracer.load_scene(SCENES / SCENE, width=SIZE, height=SIZE)
-    return np.stack([render(scene, "path", seed=6000 + k, max_depth=max_depth, spp=SPP).image
-                     for k in range(PASSES)])
+    return plugin_passes(SCENE, "path", max_depth, 6000)
 
 
 @pytest.mark.slow

@@ -9,21 +9,17 @@ import pytest
 import tracer
 from tracer import bsdf
 from tracer.integrators import path
-from tracer.rendering import render
 from validation.stats import compare_passes
 
-from .conftest import SCENES, mitsuba_passes
+from .conftest import PASSES, SCENES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import mi  # noqa: F401  (the fixture)
 
 from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
-PASSES, SIZE, SPP = 16, 32, 64
 SCENE = "plastic.xml"
 
 
 def tracer_passes(max_depth: int) -> np.ndarray:
-    scene = tracer.load_scene(SCENES / SCENE, width=SIZE, height=SIZE)
-    return np.stack([render(scene, "path", seed=9000 + k, max_depth=max_depth, spp=SPP).image
-                     for k in range(PASSES)])
+    return plugin_passes(SCENE, "path", max_depth, 9000)
 
 
 @pytest.mark.slow

@@ -7,25 +7,17 @@ reflectance's is."""
 import numpy as np
 import pytest
 
-import tracer
 from tracer import spectra
-from tracer.rendering import render
 from validation.stats import compare_passes
 
-from .conftest import mitsuba_passes
+from .conftest import PASSES, SIZE, SPP, mitsuba_passes, plugin_passes
 
 from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
-PASSES, SIZE, SPP = 16, 32, 64
 SCENE = "mesh_formats.xml"
-REPORT = dict(spp=2, direct=4, indirect=4)
 
 
 def tracer_passes(estimator: str, max_depth: int) -> np.ndarray:
-    from .conftest import SCENES
-    scene = tracer.load_scene(SCENES / SCENE, width=SIZE, height=SIZE)
-    opts = dict(REPORT) if estimator == "report" else dict(spp=SPP)
-    return np.stack([render(scene, estimator, seed=3000 + k, max_depth=max_depth, **opts).image
-                     for k in range(PASSES)])
+    return plugin_passes(SCENE, estimator, max_depth, 3000)
 
 
 @pytest.mark.slow

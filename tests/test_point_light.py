@@ -7,26 +7,19 @@ import drjit as dr
 import numpy as np
 import pytest
 
-import tracer
 from tracer.integrators import direct
-from tracer.rendering import render
 from validation.stats import compare_passes
 
-from .conftest import SCENES, mitsuba_passes
+from .conftest import PASSES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import scene_errors
 from .test_xml_loader import write_scene
 
 from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 4 comparisons: < 0.4% in all
-PASSES, SIZE, SPP = 16, 32, 64
-REPORT = dict(spp=2, direct=4, indirect=4)
 SCENE = "point_lights.xml"
 
 
 def tracer_passes(estimator: str, max_depth: int) -> np.ndarray:
-    scene = tracer.load_scene(SCENES / SCENE, width=SIZE, height=SIZE)
-    opts = dict(REPORT) if estimator == "report" else dict(spp=SPP)
-    return np.stack([render(scene, estimator, seed=8000 + k, max_depth=max_depth, **opts).image
-                     for k in range(PASSES)])
+    return plugin_passes(SCENE, estimator, max_depth, 8000)
 
 
 @pytest.mark.slow
