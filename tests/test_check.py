@@ -179,3 +179,22 @@ def test_a_sensor_in_an_included_file_is_planned(tmp_path):
     p = plan(scene, size=40)
     assert (p.width, p.height, p.max_depth) == (40, 30, 3)
     assert '<integer name="width" value="40"' in p.mitsuba_xml() and "<include" not in p.mitsuba_xml()
+
+
+def test_coverage_counts_scenes_and_ranks_blockers(tmp_path):
+    """validate coverage on a miniature mitsuba-data: one scene both load, one the tracer refuses, one that
+    Mitsuba refuses too."""
+    from validation.coverage import markdown, survey
+
+    scenes = tmp_path / "docs" / "scenes"
+    scenes.mkdir(parents=True)
+    room = (SCENES / "stress" / "glass_sphere.xml").read_text()
+    (scenes / "a.xml").write_text(room)
+    (scenes / "b.xml").write_text(room.replace('<bsdf type="dielectric">', '<bsdf type="roughdielectric">'))
+    (scenes / "c.xml").write_text("<scene version='3.0.0'><shape type='nonsense'/></scene>")
+    outcomes = survey(tmp_path, check_scenes=False)
+    assert [(o.mitsuba == "loads", o.tracer) for o in outcomes] == [(True, "loads"), (True, "refused"),
+                                                                     (False, "refused")]
+    text = markdown(outcomes, "validate coverage")
+    assert "| scene files | 3 |" in text and "| Mitsuba loads | 2 |" in text
+    assert "| bsdf roughdielectric | 1 | 1 |" in text
