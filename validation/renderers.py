@@ -47,12 +47,16 @@ class TracerRenderer:
         return (dict(direct=self.direct, indirect=self.indirect, hemisphere=self.hemisphere)
                 if self.estimator == "report" else {})
 
-    def passes(self, plan: ScenePlan, passes: int, spp: int, seed: int) -> np.ndarray:
+    def results(self, plan: ScenePlan, passes: int, spp: int, seed: int) -> list:
+        """The passes as tracer.rendering.RenderResults (image, timing, rays)."""
         from tracer.rendering import render
 
         scene = plan.tracer_scene()
-        return np.stack([render(scene, self.estimator, spp=spp, seed=seed + k, max_depth=plan.max_depth,
-                                **self.options()).image for k in range(passes)])
+        return [render(scene, self.estimator, spp=spp, seed=seed + k, max_depth=plan.max_depth, **self.options())
+                for k in range(passes)]
+
+    def passes(self, plan: ScenePlan, passes: int, spp: int, seed: int) -> np.ndarray:
+        return np.stack([r.image for r in self.results(plan, passes, spp, seed)])
 
 
 @dataclass(frozen=True)

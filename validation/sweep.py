@@ -19,17 +19,15 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from tracer.rendering import render
-
 from .check import REPORT_REFERENCE_SPP
 from .metrics import measure
+from .mitsuba_render import mitsuba
 from .protocol import ALPHA, BLOCK
 from .provenance import write_json
-from .references import mitsuba_reference
-from .stats import block_means, compare
-from .mitsuba_render import mitsuba
-from .references import Reference
+from .references import Reference, mitsuba_reference
+from .renderers import TracerRenderer
 from .scenefile import files_digest, plan
+from .stats import block_means, compare
 
 ESTIMATORS = ("path", "report", "mitsuba")   # the tracer's two estimators and Mitsuba's `path` as a peer
 IMAGES = Path(".cache/runs")                # first image of every run, for the report's image panels
@@ -64,16 +62,11 @@ FIELDS = [f.name for f in dataclasses.fields(RunSpec)] + [
 
 
 def _tracer_images(scene_file: Path, spec: RunSpec) -> tuple[list[np.ndarray], list[float], list[float], int]:
-    scene = _plan(scene_file, spec).tracer_scene()
-    extra = dict(direct=spec.direct, indirect=spec.indirect) if spec.estimator == "report" else {}
-    images, renders, compiles, rays = [], [], [], 0
-    for k in range(spec.passes):
-        r = render(scene, spec.estimator, spp=spec.spp, seed=spec.seed * 1000 + k, max_depth=spec.max_depth, **extra)
-        images.append(r.image)
-        renders.append(r.render_seconds)
-        compiles.append(r.compile_seconds)
-        rays += r.rays
-    return images, renders, compiles, rays // spec.passes
+    renderer = (TracerRenderer("report", spec.direct, spec.indirect) if spec.estimator == "report"
+                else TracerRenderer(spec.estimator))
+    results = renderer.results(_plan(scene_file, spec), spec.passes, spec.spp, spec.seed * 1000)
+    return ([r.image for r in results], [r.render_seconds for r in results], [r.compile_seconds for r in results],
+            sum(r.rays for r in results) // spec.passes)
 
 
 def _mitsuba_images(scene_file: Path, spec: RunSpec) -> tuple[list[np.ndarray], list[float], list[float], int]:
