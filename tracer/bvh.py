@@ -71,7 +71,12 @@ def build(tri_vertices: np.ndarray) -> Tree:
     v = tri_vertices
     lo_t, hi_t = np.minimum(np.minimum(v[:, 0], v[:, 1]), v[:, 2]), np.maximum(np.maximum(v[:, 0], v[:, 1]), v[:, 2])
     centroid = ((lo_t + hi_t) / 2).astype(np.float32)
-    ids = np.stack([_argsort(centroid[:, a]) for a in range(3)])   # (3, n): triangle ids, per axis
+    by_index = [_argsort(centroid[:, a], np.arange(len(v), dtype=np.uint32)) for a in range(3)]
+    rank = np.empty((3, len(v)), np.uint32)
+    for a in range(3):
+        rank[a, by_index[a]] = np.arange(len(v), dtype=np.uint32)
+    # (3, n): triangle ids sorted by centroid along each axis, ties in it by the next axis
+    ids = np.stack([by_index[(a + 1) % 3][_argsort(centroid[:, a], rank[(a + 1) % 3])] for a in range(3)])
     right_side = np.zeros(len(v), bool)
     left, right, first, count = [], [], [], []
     begin, size, n_nodes, levels = np.array([0]), np.array([len(v)]), 1, []
@@ -105,12 +110,13 @@ def build(tri_vertices: np.ndarray) -> Tree:
     return Tree(lo, hi, left, right, first, count, order, levels)
 
 
-def _argsort(key: np.ndarray) -> np.ndarray:
-    """The stable argsort of float32 keys (int32): one sort of 64-bit words, the key's bits mapped to an
-    order-preserving unsigned integer above the index (faster than NumPy's stable argsort)."""
+def _argsort(key: np.ndarray, tie: np.ndarray) -> np.ndarray:
+    """The tie values (unique uint32) of float32 keys sorted by (key, tie), in one sort of 64-bit words:
+    the key's bits mapped to an order-preserving unsigned integer above the tie (faster than NumPy's
+    stable argsort)."""
     bits = (key + np.float32(0)).view(np.uint32).astype(np.uint64)   # + 0: -0.0 becomes 0.0
     bits = np.where(bits >> 31, bits ^ 0xFFFFFFFF, bits | 0x80000000)
-    return (np.sort(bits << 32 | np.arange(len(key), dtype=np.uint64)) & 0xFFFFFFFF).astype(np.int32)
+    return (np.sort(bits << 32 | tie.astype(np.uint64)) & 0xFFFFFFFF).astype(np.int32)
 
 
 def _split(ids: np.ndarray, centroid: np.ndarray, right_side: np.ndarray, b: np.ndarray, s: np.ndarray,
