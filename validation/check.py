@@ -86,14 +86,17 @@ class CheckResult:
                 "relative_mean_difference": c.relative_mean_difference, "note": self.note}
 
 
+def _branching(renderer) -> bool:
+    return isinstance(renderer, TracerRenderer) and renderer.estimator == "report"
+
+
 def reference_spp(renderer, spp: int) -> int:
-    is_branching = isinstance(renderer, TracerRenderer) and renderer.estimator == "report"
-    return spp * REPORT_REFERENCE_SPP if is_branching else spp
+    """Mitsuba's samples per pass against `spp` of `renderer` (equal, or per camera ray of the branching one)."""
+    return spp * REPORT_REFERENCE_SPP if _branching(renderer) else spp
 
 
 def default_spp(renderer) -> int:
-    is_branching = isinstance(renderer, TracerRenderer) and renderer.estimator == "report"
-    return protocol.REPORT_SPP if is_branching else protocol.SPP
+    return protocol.REPORT_SPP if _branching(renderer) else protocol.SPP
 
 
 def check(scene_file: str | Path, renderer: TracerRenderer | ExternalRenderer, max_depth: int | None = None,
@@ -102,7 +105,7 @@ def check(scene_file: str | Path, renderer: TracerRenderer | ExternalRenderer, m
     """The verdict on one scene, renderer and depth (see the module's docstring). With `output`, a
     disagreeing or inconclusive check writes its images there (ours, reference, difference, blocks)."""
     scene_plan = plan(scene_file, defines, settings.size, max_depth)
-    if isinstance(renderer, TracerRenderer) and renderer.estimator == "report" and scene_plan.max_depth < 0:
+    if _branching(renderer) and scene_plan.max_depth < 0:
         raise ScenePlanError("the branching (report) estimator needs a finite max_depth (--max-depth or "
                          "--report-depth)")
     spp = settings.spp or default_spp(renderer)
