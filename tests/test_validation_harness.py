@@ -107,3 +107,27 @@ def test_cli_errors_are_one_line(capsys):
     assert err.startswith("validate: error:") and "\n" not in err
     assert cli.main(["report", str(SCENES / "cornell_box.xml"), "--size", "2"]) == 2
     assert "--size" in capsys.readouterr().err
+
+
+def test_sweep_renders_again_when_the_scene_changes(tmp_path, monkeypatch):
+    """Runs are keyed by the scene's content: an edited light is rendered again, not read from the CSV."""
+    calls = []
+
+    def fake_execute(scene_file, spec, ref):
+        calls.append(spec.key)
+        row = {f: 0 for f in sweep.FIELDS} | {"key": spec.key, "test": "agree", "rejected": 0, "min_p": 0.5}
+        return row, np.zeros((4, 4, 3), np.float32)
+
+    monkeypatch.setattr(sweep, "execute", fake_execute)
+    monkeypatch.setattr(sweep, "IMAGES", tmp_path / "images")
+    scene = tmp_path / "cornell_box.xml"
+    shutil.copy(SCENES / "cornell_box.xml", scene)
+    shutil.copytree(SCENES / "meshes", tmp_path / "meshes")
+    specs = [sweep.RunSpec("path", 2, 1, 8)]
+    results = tmp_path / "runs.csv"
+    sweep.sweep(scene, specs, lambda d, s: None, results)
+    sweep.sweep(scene, specs, lambda d, s: None, results)
+    assert len(calls) == 1                              # unchanged: read from the CSV
+    scene.write_text(scene.read_text().replace("<scene", "<!-- another light --><scene", 1))
+    rows = sweep.sweep(scene, specs, lambda d, s: None, results)
+    assert len(calls) == 2 and len(rows) == 1           # edited: rendered again, the stale row not reported
