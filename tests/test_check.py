@@ -111,7 +111,9 @@ def test_film_size_and_depth_override_any_scene(tmp_path):
     (["-D", "nope"], "expected NAME=VALUE"),
     (["--renderer", "render {scene}"], "must contain {output}"),
     (["--renderer", "render {scene} {output} {nonsense}"], "bad placeholder"),
-    (["--report-depth", "-3", "--estimator", "report"], "--report-depth must be at least 0"),
+    (["--report-depth", "-3", "--estimator", "report"], "the report's depth must be >= 0"),
+    (["--estimator", "report", "--direct", "0"], "direct (N) and indirect (M) must be >= 1"),
+    (["--spp", "4", "-D", "spp=8"], "--spp or -D spp, not both"),
 ])
 def test_bad_arguments_are_refused_in_one_line(args, message, capsys):
     assert cli.main(["check", str(SCENES / "hexagon_room.xml"), *args]) == 2
@@ -129,9 +131,9 @@ def test_missing_scene_and_failing_renderer_are_refused(tmp_path, capsys):
 
 
 def test_check_on_a_black_scene_agrees(capsys):
-    code = cli.main(["check", str(SCENES / "stress" / "empty.xml"), "--passes", "4", "--spp", "4"])
+    code = cli.main(["check", str(SCENES / "stress" / "empty.xml"), "--passes", "4", "-D", "spp=3"])
     out = capsys.readouterr().out
-    assert code == 0 and "both images are black" in out, out
+    assert code == 0 and "both images are black" in out and "4 x 3 spp" in out, out
 
 
 def test_an_interruption_wrapped_by_drjit_is_reported_as_one(monkeypatch, capsys):

@@ -95,7 +95,7 @@ def _check_parser(sub) -> None:
     k.add_argument("--size", type=_size, default=protocol.SIZE, help="longer side of the image, the scene's aspect "
                    f"kept (default {protocol.SIZE}; 'native': the scene's own film; -D width=... height=... sets both)")
     k.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
-                   help="override a <default> of the scene; width, height, max_depth work on any scene")
+                   help="override a <default> of the scene; width, height, max_depth and spp (per pass) work on any scene")
     k.add_argument("--alpha", type=float, default=protocol.ALPHA, help="family-wise false-positive rate of one "
                    f"check (default {protocol.ALPHA:g})")
     k.add_argument("--json", type=Path, metavar="FILE", help="write the results as JSON")
@@ -115,27 +115,27 @@ def _size(text: str) -> int | None:
 
 
 def _check(args) -> int:
+    from tracer.cli import parse_defines
+    from tracer.estimators import BranchingEstimator
+
     from .check import Settings, check, exit_code, write_json, write_junit
     from .renderers import ExternalRenderer, TracerRenderer
     from .scenefile import ScenePlanError
 
-    from tracer.cli import parse_defines
-
     defines = parse_defines(args.defines)
-    settings = Settings(passes=args.passes, spp=args.spp, seed=args.seed, alpha=args.alpha, size=args.size,
+    spp = args.spp
+    if "spp" in defines:     # -D spp sets the samples per pass on any scene, like --spp
+        if spp is not None:
+            raise ScenePlanError("give the samples per pass once: --spp or -D spp, not both")
+        spp = _integer_define(defines.pop("spp"))
+    settings = Settings(passes=args.passes, spp=spp, seed=args.seed, alpha=args.alpha, size=args.size,
                         max_spp=args.max_spp)
     if args.renderer:
         renderers = [ExternalRenderer(args.renderer)]
     else:
         renderers = [TracerRenderer(e, args.direct, args.indirect) for e in dict.fromkeys(args.estimator or ["path"])]
-    for name in ("direct", "indirect"):
-        if getattr(args, name) < 1:
-            raise ScenePlanError(f"--{name} must be at least 1, got {getattr(args, name)}")
-    if args.report_depth and min(args.report_depth) < 0:
-        raise ScenePlanError(f"--report-depth must be at least 0 (max_depth 2, direct light), got {min(args.report_depth)}")
-    from tracer.estimators import REPORT_DEPTH_OFFSET
-
-    depths = [d + REPORT_DEPTH_OFFSET for d in args.report_depth] if args.report_depth else (args.max_depth or [None])
+    depths = ([BranchingEstimator.from_report_depth(d).max_depth for d in args.report_depth] if args.report_depth
+              else (args.max_depth or [None]))
     for scene in args.scenes:
         if not scene.is_file():
             raise ScenePlanError(f"scene file '{scene}' not found")
@@ -155,6 +155,15 @@ def _check(args) -> int:
         f"{sum(r.verdict == v for r in results)} {v}" for v in ("agree", "disagree", "inconclusive")) +
         f" (exit {code})")
     return code
+
+
+def _integer_define(text: str) -> int:
+    from .scenefile import ScenePlanError
+
+    try:
+        return int(text)
+    except ValueError:
+        raise ScenePlanError(f"-D spp={text}: expected an integer") from None
 
 
 def _interrupted(e: BaseException | None) -> bool:

@@ -37,6 +37,15 @@ class TracerRenderer:
     indirect: int = 8         # branching estimator: M hemisphere rays per diffuse hit
     hemisphere: str = "cosine"
 
+    def __post_init__(self):
+        """The estimator's settings checked now, before any rendering (tracer.estimators' rules)."""
+        from tracer.estimators import make_estimator
+
+        if self.estimator == "report":
+            make_estimator("report", 0, self.direct, self.indirect, self.hemisphere)
+        else:
+            make_estimator(self.estimator, -1)
+
     @property
     def label(self) -> str:
         if self.estimator == "report":
