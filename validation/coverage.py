@@ -47,7 +47,8 @@ def blocker(refusal: str) -> str:
     m = re.search(r"<(\w+)(?: type=\"([^\"]+)\")?(?: name=\"([^\"]+)\")?>: (.*)", refusal)
     if m:
         what = " ".join(x for x in m.group(1, 2, 3) if x)
-        return f"{what}: {re.sub(chr(39) + '[^' + chr(39) + ']*' + chr(39), '…', m.group(4))[:70]}"
+        quoted_removed = re.sub(r"'[^']*'", "…", m.group(4))
+        return f"{what}: {quoted_removed[:70]}"
     return refusal[:80]
 
 
