@@ -32,8 +32,8 @@ def test_lookup_is_mitsubas(tmp_path, options, mi):
     rng = np.random.default_rng(4)
     uv = rng.uniform(-1.5, 2.5, (300, 2)).astype(np.float32)
     material = geo.scene.bsdfs.index(geo.scene.rectangles[0].bsdf)
-    t = [Float(np.full(len(uv), x, np.float32)) for x in np.asarray(geo.mat_texture.numpy()).reshape(-1, 18)[material]]
-    ours = np.asarray(geo._bitmap(t, Float(uv[:, 0]), Float(uv[:, 1]), True).numpy()).T
+    t = [Float(np.full(len(uv), x, np.float32)) for x in np.asarray(geo.materials.textures.rows.numpy()).reshape(-1, 18)[material]]
+    ours = np.asarray(geo.materials.textures._bitmap(t, Float(uv[:, 0]), Float(uv[:, 1]), True).numpy()).T
     tex = mi.load_dict({"type": "bitmap", "filename": str(IMAGE), **options})
     ref = []
     for u, v in uv:

@@ -37,7 +37,7 @@ def test_bvh_matches_brute_force(skip_prim):
     o, d = _rays(4000, [4, 0, 0], 2.5)
     brute = geometry.SceneGeometry(scene)
     bvh = geometry.SceneGeometry(scene, bvh_threshold=0)
-    assert bvh.bvh is not None and brute.bvh is None
+    assert bvh.meshes.bvh is not None and brute.meshes.bvh is None
     h1 = brute.closest_hit(o, d, 0.0, float("inf"), UInt32(NO_PRIM))
     skip = h1.prim if skip_prim else UInt32(NO_PRIM)
     h1 = brute.closest_hit(o, d, 0.0, float("inf"), skip)
@@ -229,7 +229,7 @@ def test_render_reuses_a_given_geometry():
 
     scene = tracer.load_scene(SCENES / "cornell_box.xml", width=16, height=16)
     geo = geometry.SceneGeometry(scene, bvh_threshold=0)
-    assert geo.bvh is not None
+    assert geo.meshes.bvh is not None
     a = render(scene, "path", spp=4, seed=1, max_depth=3, geometry=geo)
     b = render(scene, "path", spp=4, seed=1, max_depth=3, geometry=geo)
     np.testing.assert_array_equal(a.image, b.image)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 import tracer
-from tracer import bsdf, geometry
+from tracer.materials import tables
+from tracer.materials.fresnel import fresnel_conductor
 from tracer.ior import CONDUCTORS
 from tracer.jit import Array3f, Float
 from validation.stats import compare_passes
@@ -42,7 +43,7 @@ def test_fresnel_conductor_is_mitsubas(mi):
     cos = np.concatenate([[1.0, 1e-4, 0.5], rng.uniform(0, 1, 40)]).astype(np.float32)
     eta = rng.uniform(0.05, 4, (len(cos), 3)).astype(np.float32)
     k = rng.uniform(0, 6, (len(cos), 3)).astype(np.float32)
-    ours = bsdf.fresnel_conductor(Float(cos), Array3f(*(Float(eta[:, c]) for c in range(3))),
+    ours = fresnel_conductor(Float(cos), Array3f(*(Float(eta[:, c]) for c in range(3))),
                                   Array3f(*(Float(k[:, c]) for c in range(3)))).numpy().T   # (n, 3)
     ref = np.array([[mi.fresnel_conductor(float(c), dr.scalar.Complex2f(float(e), float(kk)))
                      for e, kk in zip(eta[i], k[i])] for i, c in enumerate(cos)])
@@ -51,7 +52,7 @@ def test_fresnel_conductor_is_mitsubas(mi):
 
 def test_perfect_mirror_reflects_everything():
     cos = Float(np.linspace(1e-4, 1, 50, dtype=np.float32))
-    f = np.asarray(bsdf.fresnel_conductor(cos, Array3f(0.0), Array3f(1.0)).numpy())
+    f = np.asarray(fresnel_conductor(cos, Array3f(0.0), Array3f(1.0)).numpy())
     assert np.all(f == 1.0)
 
 
@@ -69,7 +70,7 @@ def test_conductors_agree_with_mitsuba(estimator, max_depth):
 
 @pytest.mark.slow
 def test_fails_on_perfect_mirrors(monkeypatch):
-    monkeypatch.setattr(geometry, "fresnel_conductor", lambda cos_i, eta, k: Array3f(1.0))
+    monkeypatch.setattr(tables, "fresnel_conductor", lambda cos_i, eta, k: Array3f(1.0))
     ref = mitsuba_passes("conductors.xml", PASSES, SPP, width=SIZE, height=SIZE, max_depth=6)
     result = compare_passes(tracer_passes("path", 6), ref, ALPHA)
     assert result.verdict == "disagree", result.summary()

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import tracer
-from tracer.scene import Rectangle
+from tracer.shapes import Rectangle
 from validation.stats import compare_passes
 
 from .conftest import PASSES, SCENES, SIZE, SPP, mitsuba_passes, plugin_passes

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 import tracer
-from tracer.geometry import SceneGeometry, _EnvmapKernel
+from tracer.geometry import SceneGeometry
+from tracer.lights.envmap import EnvmapKernel
 from tracer.jit import Array3f, Float
 from validation.stats import compare_passes
 
@@ -71,7 +72,7 @@ def test_environment_map_agrees_with_mitsuba(max_depth):
 
 @pytest.mark.slow
 def test_fails_when_the_density_is_not_the_sampled_one(monkeypatch):
-    monkeypatch.setattr(_EnvmapKernel, "pdf", lambda self, d: Float(1.0 / (4.0 * np.pi)))
+    monkeypatch.setattr(EnvmapKernel, "pdf", lambda self, d: Float(1.0 / (4.0 * np.pi)))
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=2)
     result = compare_passes(tracer_passes(2), ref, ALPHA)
     assert result.verdict == "disagree", result.summary()

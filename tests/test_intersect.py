@@ -1,4 +1,4 @@
-"""Ray-primitive intersections (tracer/intersect.py) and the scene-level queries built on them.
+"""Ray-primitive intersections (tracer/shapes) and the scene-level queries built on them.
 
 Tolerances are float32 forward-error bounds. Every reference is computed in float64 from the *float32*
 values the kernel actually receives, so the only error left is the kernel's own rounding: with
@@ -11,30 +11,33 @@ import numpy as np
 import pytest
 
 import tracer
-from tracer import intersect
 from tracer.geometry import SceneGeometry
-from tracer.intersect import EDGE_MARGIN
 from tracer.jit import INF, NO_PRIM, Bool, Float, UInt32, vec3
-from tracer.scene import BSDF, Rectangle
+from tracer.materials import BSDF
+from tracer.shapes import Rectangle
+from tracer.shapes.planar import EDGE_MARGIN
+from tracer.shapes.rectangle import ray_rectangle
+from tracer.shapes.sphere import ray_sphere
+from tracer.shapes.triangle import ray_triangle
 
 from .float32 import U, arr3, f32, unit  # noqa: E402
 
 
 def rect(o, d, center, du, dv, n, t_min=0.0, t_max=INF) -> np.ndarray:
-    t, _, _ = intersect.ray_rectangle(arr3(o), arr3(d), vec3(center), vec3(du), vec3(dv), vec3(n), t_min, t_max)
+    t, _, _ = ray_rectangle(arr3(o), arr3(d), vec3(center), vec3(du), vec3(dv), vec3(n), t_min, t_max)
     return t.numpy()
 
 
 def tri(o, d, v0, v1, v2, t_min=0.0, t_max=INF):
     v0, v1, v2 = (np.asarray(v, np.float64) for v in (v0, v1, v2))
-    t, b1, b2 = intersect.ray_triangle(arr3(o), arr3(d), vec3(v0), vec3(v1 - v0), vec3(v2 - v0), t_min, t_max)
+    t, b1, b2 = ray_triangle(arr3(o), arr3(d), vec3(v0), vec3(v1 - v0), vec3(v2 - v0), t_min, t_max)
     return t.numpy(), b1.numpy(), b2.numpy()
 
 
 def sphere(o, d, center, radius, leaving=False, t_min=0.0, t_max=INF) -> np.ndarray:
     n = len(np.atleast_2d(o))
     leave = Bool(np.broadcast_to(np.asarray(leaving, bool), (n,)).copy())
-    return intersect.ray_sphere(arr3(o), arr3(d), vec3(center), float(radius), t_min, t_max, leave).numpy()
+    return ray_sphere(arr3(o), arr3(d), vec3(center), float(radius), t_min, t_max, leave).numpy()
 
 
 # ---- rectangle ---------------------------------------------------------------------------------------
@@ -475,7 +478,7 @@ def geo(tmp_path_factory):
     (folder / "tri.obj").write_text("v -1 -1 1\nv 3 -1 1\nv -1 3 1\nf 1 2 3\n")
     (folder / "tiny.xml").write_text(SCENE_XML)
     g = SceneGeometry(tracer.load_scene(folder / "tiny.xml"))
-    assert (g.n_rects, g.n_tris, g.sphere_base, g.n_prims) == (2, 1, 3, 4)
+    assert (g.meshes.base, g.meshes.count, g.spheres.base, g.n_prims) == (2, 1, 3, 4)
     return g
 
 

@@ -10,11 +10,11 @@ from .conftest import SCENES
 
 def test_convex_room_walls_are_not_occluders():
     geo = SceneGeometry(tracer.load_scene(SCENES / "hexagon_room.xml"))
-    names = {i: r.name for i, r in enumerate(geo.rects)}
+    names = {i: r.name for i, r in enumerate(geo.rectangles.shapes)}
     kept = {names.get(i, "mesh or sphere") for i in geo.occluders}
     assert kept == {"light", "mesh or sphere"}
-    tetra = set(range(geo.n_rects + 8, geo.n_rects + 12))  # floor (4) and ceiling (4) triangles come first
-    assert tetra <= geo.occluders and not (set(range(geo.n_rects, geo.n_rects + 8)) & geo.occluders)
+    tetra = set(range(geo.meshes.base + 8, geo.meshes.base + 12))  # floor (4) and ceiling (4) triangles come first
+    assert tetra <= geo.occluders and not (set(range(geo.meshes.base, geo.meshes.base + 8)) & geo.occluders)
 
 
 def test_culled_occluders_change_no_shadow_ray_between_scene_points():
@@ -43,9 +43,8 @@ def test_culled_occluders_change_no_shadow_ray_between_scene_points():
     assert 0.1 < b.mean() < 0.9                                       # both blocked and free segments
     # They may differ only for segments lying in a culled primitive's plane (two points on the floor):
     # the full test then reports a rounding-level graze of a coplanar neighbour, the culled one cannot.
-    planes = [(r.center, r.normal) for r in culled.rects]
-    planes += [(v[0], n) for v, n in zip(culled.tri_vertices, culled._face_normals())]
-    culled_planes = [pl for i, pl in enumerate(planes) if i not in culled.occluders]
+    culled_planes = [(p0, n) for shapes in culled.shape_sets for i, p0, n in shapes.culling_planes()
+                     if i not in culled.occluders]
     in_plane = np.zeros(half, bool)
     for p0, n in culled_planes:
         in_plane |= (np.abs((x - p0) @ n) < 1e-5) & (np.abs((y - p0) @ n) < 1e-5)

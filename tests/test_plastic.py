@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import tracer
-from tracer import bsdf
-from tracer.integrators import path
+from tracer.materials import plastic
+from tracer.materials.fresnel import fresnel_diffuse_reflectance
 from validation.stats import compare_passes
 
 from .conftest import PASSES, SCENES, SIZE, SPP, mitsuba_passes, plugin_passes
@@ -32,8 +32,8 @@ def test_plastic_agrees_with_mitsuba(max_depth):
 
 @pytest.mark.slow
 def test_fails_without_the_interface_transmission(monkeypatch):
-    diffuse = bsdf.plastic_diffuse
-    monkeypatch.setattr(path, "plastic_diffuse",
+    diffuse = plastic.diffuse_layer
+    monkeypatch.setattr(plastic, "diffuse_layer",
                         lambda albedo, fdr, nl, inv_eta2, f_i, f_o: diffuse(albedo, fdr, nl, inv_eta2, 0.0, 0.0))
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=2)
     result = compare_passes(tracer_passes(2), ref, ALPHA)
@@ -43,7 +43,7 @@ def test_fails_without_the_interface_transmission(monkeypatch):
 @pytest.mark.parametrize("eta", [1 / 1.49, 1.49, 0.8, 2.4, 1.0001])
 def test_diffuse_fresnel_reflectance_is_mitsubas(eta, mi):
     # Mitsuba evaluates the fit in float32: equal to its rounding (the fit cancels near eta = 1)
-    assert bsdf.fresnel_diffuse_reflectance(eta) == pytest.approx(mi.fresnel_diffuse_reflectance(eta), abs=5e-7)
+    assert fresnel_diffuse_reflectance(eta) == pytest.approx(mi.fresnel_diffuse_reflectance(eta), abs=5e-7)
 
 
 def test_report_estimator_refuses_plastic():

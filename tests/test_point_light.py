@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from tracer.integrators import direct
+from tracer.lights import POINT_LIGHT
 from validation.stats import compare_passes
 
 from .conftest import PASSES, SIZE, SPP, mitsuba_passes, plugin_passes
@@ -38,7 +39,7 @@ def test_fails_with_a_1_over_d_falloff(monkeypatch):
         ds = sample(geo, surf, ns, albedo, u_select, u1, u2, active)
         ls = geo.sample_light(u_select, u1, u2)
         d = dr.norm(ls.y - surf.p)
-        ds.value = dr.select(ls.prim == direct.POINT_LIGHT, ds.value * d, ds.value)
+        ds.value = dr.select(ls.prim == POINT_LIGHT, ds.value * d, ds.value)
         return ds
 
     monkeypatch.setattr(direct, "sample_direct", one_over_d)

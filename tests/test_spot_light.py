@@ -6,7 +6,7 @@ ALPHA per comparison; the same test failing with a hard-edged cone."""
 import numpy as np
 import pytest
 
-from tracer.scene import PointLight
+from tracer.lights import PointLight
 from validation.stats import compare_passes
 
 from .conftest import PASSES, SIZE, SPP, mitsuba_passes, plugin_passes

@@ -61,7 +61,7 @@ def test_scaled_rooms_are_up_to_date():
 @pytest.mark.parametrize("scene_name", stability.LEAK_SCENES)
 def test_rays_through_shared_edges_and_vertices_hit(scene_name):
     """Rays from inside a closed enclosure aimed exactly at its corners and along its edges must hit it:
-    a miss is a crack a path could leak through (closed by tracer.intersect.EDGE_MARGIN)."""
+    a miss is a crack a path could leak through (closed by tracer.shapes.planar.EDGE_MARGIN)."""
     missed, total = stability.edge_ray_misses(scene_name)
     assert missed == 0, f"{missed} of {total} rays through edges/vertices slipped through the enclosure"
 

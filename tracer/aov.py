@@ -22,10 +22,12 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from .bsdf import dielectric_interface, reflect
 from .camera import primary_rays
 from .film import Film, ReconstructionFilter
-from .geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneGeometry
+from .geometry import SceneGeometry
+from .materials import CONDUCTOR, DIELECTRIC, DIFFUSE
+from .materials.dielectric import dielectric_interface
+from .materials.fresnel import reflect
 from .integrators.direct import facing_normal
 from .jit import INF, NO_PRIM, PCG32, Array3f, Bool, Float, UInt32, opaque_u32
 from .launch import chunks, seed_state
@@ -93,23 +95,23 @@ def _vertex(geo, rng, o, d, t_min, t_max, skip, bounce, albedo, normal):
     hit = geo.closest_hit(o, d, t_min, t_max, skip)
     surf = geo.surface(hit)
     wi = -d
-    kind = geo.kind(surf.material, surf.valid)
+    kind = geo.materials.kind(surf.material, surf.valid)
     ns, lit = facing_normal(geo, surf, wi)
     diffuse = surf.valid & (kind == DIFFUSE) & lit
-    rho = dr.select(diffuse, geo.albedo_at(surf, diffuse), Array3f(0.0))
+    rho = dr.select(diffuse, geo.materials.albedo_at(surf, diffuse), Array3f(0.0))
     light = Bool(False)
     if geo.emitters:
         le = geo.emitted(surf, wi)
         light = dr.max(le) > 0
         rho = dr.select(light, le / dr.max(le), rho)
     follow, new_d = Bool(False), Array3f(d)
-    if CONDUCTOR in geo.kinds:
+    if CONDUCTOR in geo.materials.kinds:
         mirror = surf.valid & ~light & (kind == CONDUCTOR) & (dr.dot(surf.ns, wi) > 0)
         new_d = dr.select(mirror, reflect(d, surf.ns), new_d)
         follow |= mirror
-    if DIELECTRIC in geo.kinds:
+    if DIELECTRIC in geo.materials.kinds:
         glass = surf.valid & ~light & (kind == DIELECTRIC)
-        int_ior, ext_ior = geo.iors(surf.material, glass)
+        int_ior, ext_ior = geo.materials.iors(surf.material, glass)
         f, reflected, refracted, _ = dielectric_interface(d, surf.ns, int_ior, ext_ior)
         new_d = dr.select(glass, dr.select(rng.next_float32() < f, reflected, refracted), new_d)
         follow |= glass

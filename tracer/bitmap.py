@@ -1,4 +1,4 @@
-"""Mitsuba's `bitmap` texture on the host: the image as linear RGB (the kernel lookup is in geometry.py).
+"""Mitsuba's `bitmap` texture on the host: the image as linear RGB (the kernel lookup is in tracer/materials/textures.py).
 
 As Mitsuba 3.9.1's RGB variants: an 8-bit image (PNG, JPEG, BMP, ...; read with Pillow) is sRGB-encoded
 unless `raw`, and each texel is decoded to linear before filtering; an OpenEXR image is linear. Alpha is
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .envmap import EnvmapError, read_exr_rgb
+from .imageio import ImageError, read_exr_rgb
 
 
 class BitmapError(ValueError):
@@ -29,7 +29,7 @@ def read_bitmap(path: Path, raw: bool) -> np.ndarray:
     if path.suffix.lower() == ".exr":
         try:
             return read_exr_rgb(path)
-        except EnvmapError as e:
+        except ImageError as e:
             raise BitmapError(str(e)) from None
     from PIL import Image, UnidentifiedImageError
 

@@ -24,7 +24,7 @@ from functools import cached_property
 import drjit as dr
 import numpy as np
 
-from . import intersect
+from .shapes.triangle import ray_triangle
 from .jit import INF, PRECISION, Array3f, ArrayXf, ArrayXu, Bool, Float, UInt32, UInt64
 
 LEAF_SIZE = 2
@@ -309,7 +309,7 @@ class BVHKernel:
             active &= prim != skip
             if target is not None:
                 active &= prim != target
-            t, b1, b2 = intersect.ray_triangle(o, d, Array3f(x[0], x[1], x[2]), Array3f(x[4], x[5], x[6]),
+            t, b1, b2 = ray_triangle(o, d, Array3f(x[0], x[1], x[2]), Array3f(x[4], x[5], x[6]),
                                                Array3f(x[8], x[9], x[10]), t_min, t_best)
             closer = active & (t < t_hit)
             t_hit, hit_prim = dr.select(closer, t, t_hit), dr.select(closer, prim, hit_prim)

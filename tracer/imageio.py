@@ -120,6 +120,26 @@ def read_exr(path: str | Path) -> np.ndarray:
         return np.stack([np.asarray(channels[c].pixels, np.float32) for c in "RGB"], axis=-1)
 
 
+def read_exr_rgb(path: Path) -> np.ndarray:
+    """An input image's RGB channels (an environment map, a texture) from an OpenEXR file as (H, W, 3) float32 (an alpha channel is dropped, as Mitsuba's
+    conversion to RGB does)."""
+    try:
+        with OpenEXR.File(str(path)) as f:
+            channels = f.parts[0].channels
+            if "RGB" in channels or "RGBA" in channels:
+                pixels = np.asarray(channels.get("RGB", channels.get("RGBA")).pixels)[..., :3]
+            elif all(c in channels for c in "RGB"):
+                pixels = np.stack([np.asarray(channels[c].pixels) for c in "RGB"], axis=-1)
+            else:
+                raise ImageError(f"{path}: no R, G, B channels (has {', '.join(channels)})")
+    except (OSError, RuntimeError) as e:
+        raise ImageError(f"{path}: not a readable OpenEXR image ({e})") from None
+    image = pixels.astype(np.float32)
+    if not np.all(np.isfinite(image)) or np.any(image < 0):
+        raise ImageError(f"{path}: pixels must be finite and non-negative")
+    return image
+
+
 def write_png(path: str | Path, image: np.ndarray, metadata: dict[str, str] | None = None) -> None:
     """sRGB, 8 bits per channel, `metadata` as text chunks; encoded band by band (PNG_ROWS) to bound the
     encoding's memory."""

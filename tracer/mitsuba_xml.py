@@ -20,12 +20,14 @@ import numpy as np
 
 from . import spectra, transform
 from .bitmap import BitmapError, read_bitmap
-from .envmap import EnvmapError, read_exr_rgb
 from .film import ReconstructionFilter
 from .ior import named_conductor, named_ior
 from .meshes import MeshError, read_obj, read_ply, vertex_normals
-from .scene import (BSDF, Bitmap, Camera, Checkerboard, Cylinder, DirectionalLight, EnvironmentMap, Mesh, PointLight,
-                    Rectangle, Scene, SceneError, Sphere)
+from .imageio import ImageError, read_exr_rgb
+from .lights import DirectionalLight, EnvironmentMap, PointLight
+from .materials import BSDF, Bitmap, Checkerboard
+from .scene import Camera, Scene, SceneError
+from .shapes import Cylinder, Mesh, Rectangle, Sphere
 from .serialized import read_serialized
 
 SUPPORTED = {
@@ -910,7 +912,7 @@ def _directional_light(ctx: _Context, node: Node) -> DirectionalLight:
 
 
 def _envmap(ctx: _Context, node: Node) -> EnvironmentMap:
-    """Mitsuba's `envmap` from an OpenEXR file (tracer/envmap.py)."""
+    """Mitsuba's `envmap` from an OpenEXR file (tracer/lights/envmap.py)."""
     props = _Props(ctx, node, _check_type(ctx, node), emitter=True)
     filename = props.get("filename", None, ("string",))
     scale = props.get("scale", 1.0, ("float", "integer"))
@@ -931,7 +933,7 @@ def _envmap(ctx: _Context, node: Node) -> EnvironmentMap:
         raise ctx.error(node, f"image '{filename}' not found (looked in {', '.join(map(str, ctx.resolver))})")
     try:
         image = read_exr_rgb(file)
-    except EnvmapError as e:
+    except ImageError as e:
         raise ctx.error(node, str(e)) from None
     return EnvironmentMap(image * np.float32(scale), to_world, node.attrib.get("id", f"envmap@{node.line}"))
 

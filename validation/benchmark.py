@@ -53,7 +53,8 @@ def _child(job: dict) -> dict:
             return image[..., :3], time.perf_counter() - start, 0.0, 0
     else:
         import tracer
-        from tracer.geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneGeometry
+        from tracer.geometry import SceneGeometry
+        from tracer.materials import CONDUCTOR, DIELECTRIC, DIFFUSE
         from tracer.rendering import render
 
         options = {}
@@ -67,7 +68,7 @@ def _child(job: dict) -> dict:
         geometry = SceneGeometry(scene, **options)   # builds the BVH, reused by every render below
         setup = time.perf_counter() - start
         split = {"load_seconds": loaded - start, "geometry_seconds": setup - (loaded - start),
-                 "triangles": geometry.n_tris}
+                 "triangles": geometry.meshes.count}
 
         def run(seed):
             r = render(scene, job["estimator"], seed=seed, geometry=geometry, **job["options"])
@@ -489,13 +490,13 @@ def markdown(r: dict) -> str:
         cells = [by_n[n].get(kind) for kind in ("bvh", "brute force", "Mitsuba")]
         cells += [setup.get(("bvh", n)), setup.get(("Mitsuba", n))]
         lines.append(f"| {n:,} | " + " | ".join("–" if c is None else f"{c:.2f}" for c in cells) + " |")
-    from tracer.geometry import BVH_THRESHOLD
+    from tracer.shapes import BVH_THRESHOLD
 
     smallest, largest = min(by_n), max(by_n)
     ours = {n: min(t for k, t in by_n[n].items() if k != "Mitsuba") for n in (smallest, largest)}
     lines += ["", f"The largest mesh takes **{ours[largest] / ours[smallest]:.1f}x** the time of the "
               f"{smallest}-triangle scene (each with its faster kernel; the tracer uses the BVH above "
-              f"`tracer.geometry.BVH_THRESHOLD` = {BVH_THRESHOLD} triangles). Mitsuba, whose meshes Embree traces, "
+              f"`tracer.shapes.BVH_THRESHOLD` = {BVH_THRESHOLD} triangles). Mitsuba, whose meshes Embree traces, "
               f"takes {by_n[largest]['Mitsuba'] / by_n[smallest]['Mitsuba']:.1f}x.", ""]
     lines += mesh_markdown(r["meshes"])
     return "\n".join(lines)

@@ -20,9 +20,9 @@ from unittest import mock
 
 import drjit as dr
 
-import tracer.bsdf
 import tracer.integrators.direct
 import tracer.integrators.report
+import tracer.materials.dielectric
 from tracer.geometry import SceneGeometry
 
 
@@ -74,8 +74,8 @@ def _schlick_fresnel() -> list:
         f = r0 + (1.0 - r0) * dr.power(1.0 - cos_i, 5)
         return dr.select(exact_f >= 1.0, 1.0, f), cos_t, ratio   # total internal reflection kept
 
-    correct = tracer.bsdf.fresnel_dielectric
-    return [mock.patch.object(tracer.bsdf, "fresnel_dielectric", schlick)]
+    correct = tracer.materials.dielectric.fresnel_dielectric
+    return [mock.patch.object(tracer.materials.dielectric, "fresnel_dielectric", schlick)]
 
 
 def _wrong_light_density() -> list:

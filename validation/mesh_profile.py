@@ -48,7 +48,7 @@ def profile_tracer(geometry) -> dict:
 
     from tracer.bvh import layout
 
-    points = geometry.tri_vertices.reshape(-1, 3)
+    points = geometry.meshes.tri_vertices.reshape(-1, 3)
     o, d, dist = random_rays(points.min(axis=0), points.max(axis=0))
     o, d, dist = Array3f(*o.T), Array3f(*d.T), Float(dist)
     none = UInt32(NO_PRIM)
@@ -61,14 +61,14 @@ def profile_tracer(geometry) -> dict:
            "shadow_seconds": _timed(lambda: (geometry.occluded(o, d, dist, none, none),))}
     hit = closest()[1]
     out["hit_fraction"] = float(np.mean(hit.numpy() != NO_PRIM))
-    if geometry.bvh is not None:
+    if geometry.meshes.bvh is not None:
         start = time.perf_counter()
-        layout(geometry.tri_vertices)
+        layout(geometry.meshes.tri_vertices)
         out["bvh_build_seconds"] = time.perf_counter() - start
-        steps, tests = (a.numpy() for a in geometry.bvh.closest_hit_work(o, d))
+        steps, tests = (a.numpy() for a in geometry.meshes.bvh.closest_hit_work(o, d))
         out.update(steps_mean=float(steps.mean()), steps_p90=float(np.percentile(steps, 90)),
                    tests_mean=float(tests.mean()), tests_p90=float(np.percentile(tests, 90)),
-                   bvh_rows=len(geometry.bvh.rows), bvh_depth=geometry.bvh.stack_size)
+                   bvh_rows=len(geometry.meshes.bvh.rows), bvh_depth=geometry.meshes.bvh.stack_size)
     return out
 
 

@@ -471,7 +471,7 @@ def edge_ray_misses(scene_name: str, per_edge: int = 401) -> tuple[int, int]:
 
     misses = total = 0
     for geo, _, hit in edge_rays(scene_name, per_edge):
-        lights = [i for i, r in enumerate(geo.rects) if r.radiance is not None]
+        lights = [i for i, r in enumerate(geo.rectangles.shapes) if r.radiance is not None]
         prim = hit.prim.numpy()
         misses += int(np.sum((prim == NO_PRIM) | np.isin(prim, lights)))
         total += len(prim)
@@ -567,8 +567,8 @@ def write_report(path: Path, outcomes: list[Outcome], sweep: dict, sweep_seconds
               "at every corner and at 401 points along every edge; a ray that misses the enclosure or reaches "
               "the light outside passed through a crack. The rendered black cases above sample such rays with "
               "probability ~0; these aim at them. Two guards keep closed enclosures closed: edge tests conservative "
-              "by 2^-20 of each primitive (tracer/intersect.py: no crack between neighbours), and hit points kept "
-              "2^-20 inside their primitive (tracer/geometry.py: a hit accepted beyond an edge would otherwise lie "
+              "by 2^-20 of each primitive (tracer/shapes/planar.py: no crack between neighbours), and hit points kept "
+              "2^-20 inside their primitive (tracer/shapes/planar.py, inset_point: a hit accepted beyond an edge would otherwise lie "
               "outside the neighbouring face, and a path continued from there escapes. Before the second guard the "
               "closed cube mesh leaked in float32 and, with the same maximum order (0.0154), in float64: a "
               "geometric fault, not rounding).", "",

@@ -5,8 +5,9 @@ from dataclasses import dataclass
 
 import drjit as dr
 
-from ..bsdf import diffuse_brdf
-from ..geometry import DIRECTIONAL_LIGHT, POINT_LIGHT, SceneGeometry, Surface
+from ..geometry import SceneGeometry, Surface
+from ..lights import DIRECTIONAL_LIGHT, POINT_LIGHT
+from ..materials.diffuse import diffuse_brdf
 from ..jit import INF, NO_PRIM, Array3f, Bool, Float
 
 
@@ -15,7 +16,7 @@ def facing_normal(geo: SceneGeometry, surf: Surface, wi: Array3f) -> tuple[Array
 
     One-sided materials are black from behind, as in Mitsuba.
     """
-    twosided = geo.twosided(surf.material, surf.valid)
+    twosided = geo.materials.twosided(surf.material, surf.valid)
     back = dr.dot(surf.ns, wi) < 0
     ns = dr.select(twosided & back, -surf.ns, surf.ns)
     return ns, dr.dot(ns, wi) > 0

@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import drjit as dr
 
-from ..bsdf import (dielectric_interface, fresnel_dielectric, plastic_diffuse, plastic_specular_probability,
-                    reflect)
-from ..geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, PLASTIC, SceneGeometry
+from ..geometry import SceneGeometry
+from ..materials import CONDUCTOR, DIELECTRIC, DIFFUSE, PLASTIC, plastic
+from ..materials.dielectric import dielectric_interface
+from ..materials.fresnel import fresnel_dielectric, reflect
 from ..jit import INF, NO_PRIM, PCG32, Array3f, Bool, Float, UInt32
 from ..sampling import square_to_cosine_hemisphere, to_world
 from .direct import facing_normal, power_heuristic, sample_direct
@@ -77,14 +78,14 @@ def _vertex(geo, rng, path: PathState, max_depth) -> Bool:
         w = dr.select(path.prev_delta, 1.0, power_heuristic(path.prev_pdf, pdf_light))
         L += dr.select(on_light, beta * le * w, Array3f(0.0))
     active_next = surf.valid & (depth + 1 < max_depth)
-    kind = geo.kind(surf.material, surf.valid)
+    kind = geo.materials.kind(surf.material, surf.valid)
     new_d, weight, pdf, delta = Array3f(0.0), Array3f(0.0), Float(0.0), Bool(False)
     new_eta = eta
 
-    if DIFFUSE in geo.kinds:
+    if DIFFUSE in geo.materials.kinds:
         is_diffuse = active_next & (kind == DIFFUSE)
         ns, lit = facing_normal(geo, surf, wi)
-        albedo = geo.albedo_at(surf, is_diffuse)
+        albedo = geo.materials.albedo_at(surf, is_diffuse)
         is_diffuse &= lit
         if geo.has_lights:
             ds = sample_direct(geo, surf, ns, albedo, rng.next_float32(), rng.next_float32(), rng.next_float32(),
@@ -97,15 +98,15 @@ def _vertex(geo, rng, path: PathState, max_depth) -> Bool:
         weight = dr.select(is_diffuse, albedo, weight)      # f cos / pdf = rho for cosine sampling
         pdf = dr.select(is_diffuse, local.z / dr.pi, pdf)
 
-    if CONDUCTOR in geo.kinds:
+    if CONDUCTOR in geo.materials.kinds:
         is_mirror = active_next & (kind == CONDUCTOR) & (dr.dot(surf.ns, wi) > 0)
         new_d = dr.select(is_mirror, reflect(d, surf.ns), new_d)
-        weight = dr.select(is_mirror, geo.conductor_weight(surf.material, dr.dot(surf.ns, wi), is_mirror), weight)
+        weight = dr.select(is_mirror, geo.materials.conductor_weight(surf.material, dr.dot(surf.ns, wi), is_mirror), weight)
         delta |= is_mirror
 
-    if DIELECTRIC in geo.kinds:
+    if DIELECTRIC in geo.materials.kinds:
         is_glass = active_next & (kind == DIELECTRIC)
-        int_ior, ext_ior = geo.iors(surf.material, is_glass)
+        int_ior, ext_ior = geo.materials.iors(surf.material, is_glass)
         f, reflected, refracted, scale = dielectric_interface(d, surf.ns, int_ior, ext_ior)
         choose_reflect = rng.next_float32() < f
         new_d = dr.select(is_glass, dr.select(choose_reflect, reflected, refracted), new_d)
@@ -113,7 +114,7 @@ def _vertex(geo, rng, path: PathState, max_depth) -> Bool:
         new_eta = dr.select(is_glass & ~choose_reflect, eta / dr.sqrt(scale), eta)
         delta |= is_glass
 
-    if PLASTIC in geo.kinds:
+    if PLASTIC in geo.materials.kinds:
         L, new_d, weight, pdf, delta, rays = _plastic(geo, rng, surf, wi, d, beta, L, active_next & (kind == PLASTIC),
                                                       new_d, weight, pdf, delta, rays)
 
@@ -128,22 +129,22 @@ def _plastic(geo, rng, surf, wi, d, beta, L, is_plastic, new_d, weight, pdf, del
     ns = surf.ns
     cos_i = dr.dot(ns, wi)
     is_plastic &= cos_i > 0
-    spec, (eta, inv_eta2, fdr_int, spec_weight, nonlinear) = geo.plastic(surf.material, is_plastic)
-    albedo = geo.albedo_at(surf, is_plastic)
+    spec, (eta, inv_eta2, fdr_int, spec_weight, nonlinear) = geo.materials.plastic(surf.material, is_plastic)
+    albedo = geo.materials.albedo_at(surf, is_plastic)
     f_i = fresnel_dielectric(cos_i, eta)[0]
-    p_spec = plastic_specular_probability(f_i, spec_weight)
+    p_spec = plastic.specular_probability(f_i, spec_weight)
     if geo.has_lights:
         ds = sample_direct(geo, surf, ns, Array3f(1.0), rng.next_float32(), rng.next_float32(), rng.next_float32(),
                            is_plastic)
         f_o = fresnel_dielectric(dr.maximum(ds.cos_x, 0.0), eta)[0]
-        value = ds.value * plastic_diffuse(albedo, fdr_int, nonlinear, inv_eta2, f_i, f_o)
+        value = ds.value * plastic.diffuse_layer(albedo, fdr_int, nonlinear, inv_eta2, f_i, f_o)
         w_nee = power_heuristic(ds.pdf_light, (1.0 - p_spec) * dr.maximum(ds.cos_x, 0.0) / dr.pi)
         L += dr.select(is_plastic, beta * value * w_nee, Array3f(0.0))
         rays += dr.select(is_plastic, 1, 0)
     choose_spec = rng.next_float32() < p_spec
     local = square_to_cosine_hemisphere(rng.next_float32(), rng.next_float32())
     f_o = fresnel_dielectric(local.z, eta)[0]
-    diffuse_weight = plastic_diffuse(albedo, fdr_int, nonlinear, inv_eta2, f_i, f_o) / (1.0 - p_spec)
+    diffuse_weight = plastic.diffuse_layer(albedo, fdr_int, nonlinear, inv_eta2, f_i, f_o) / (1.0 - p_spec)
     new_d = dr.select(is_plastic, dr.select(choose_spec, reflect(d, ns), to_world(local, ns)), new_d)
     weight = dr.select(is_plastic, dr.select(choose_spec, spec * (f_i / p_spec), diffuse_weight), weight)
     pdf = dr.select(is_plastic & ~choose_spec, (1.0 - p_spec) * local.z / dr.pi, pdf)

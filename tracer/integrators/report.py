@@ -14,8 +14,10 @@ from typing import TYPE_CHECKING
 
 import drjit as dr
 
-from ..bsdf import dielectric_interface, reflect
-from ..geometry import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneGeometry, Surface
+from ..geometry import SceneGeometry, Surface
+from ..materials import CONDUCTOR, DIELECTRIC, DIFFUSE
+from ..materials.dielectric import dielectric_interface
+from ..materials.fresnel import reflect
 from ..jit import NO_PRIM, PCG32, Array3f, Bool, Float, UInt32
 from ..sampling import seeded_rng, square_to_cosine_hemisphere, square_to_uniform_hemisphere, to_world
 from .direct import facing_normal, sample_direct
@@ -64,12 +66,12 @@ def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int
     if vertex + 1 > max_depth:
         dr.eval(radiance)
         return None, len(wave)
-    kind = geo.kind(surf.material, surf.valid)
+    kind = geo.materials.kind(surf.material, surf.valid)
     ns, lit = facing_normal(geo, surf, wi)
     diffuse = surf.valid & lit & (kind == DIFFUSE)
     dr.eval(radiance, surf.p, surf.prim, surf.material, ns, kind, diffuse)
     rays = len(wave)
-    if geo.has_lights and DIFFUSE in geo.kinds:
+    if geo.has_lights and DIFFUSE in geo.materials.kinds:
         rays += _shadow_rays(geo, surf, ns, diffuse, wave, settings.direct, radiance, seed)
     return _spawn(geo, Vertices(surf, ns, kind, diffuse), wave, vertex, max_depth, settings, seed), rays
 
@@ -91,7 +93,7 @@ def _shadow_rays(geo, surf, ns, diffuse, wave, n_direct, radiance, seed) -> int:
     if count == 0:
         return 0
     sub = _gather_surface(surf, vertices)
-    estimate = direct_estimate(geo, sub, dr.gather(Array3f, ns, vertices), geo.albedo(sub.material, True),
+    estimate = direct_estimate(geo, sub, dr.gather(Array3f, ns, vertices), geo.materials.albedo(sub.material, True),
                                _rng(count, seed, 1), n_direct)
     weight = dr.gather(Array3f, wave.weight, vertices)
     dr.scatter_add(radiance, weight * estimate, dr.gather(UInt32, wave.sample, vertices))
@@ -130,12 +132,12 @@ def _spawn(geo, at: Vertices, wave: Wavefront, vertex: int, max_depth: int, sett
     parent, slot = lane // slots, lane % slots
     k = dr.gather(UInt32, kind, parent)
     valid = Bool(False)
-    if DIFFUSE in geo.kinds and vertex + 2 <= max_depth:
+    if DIFFUSE in geo.materials.kinds and vertex + 2 <= max_depth:
         valid |= dr.gather(Bool, diffuse, parent) & (slot < settings.indirect)
-    if CONDUCTOR in geo.kinds:
+    if CONDUCTOR in geo.materials.kinds:
         front = dr.dot(dr.gather(Array3f, surf.ns, parent), dr.gather(Array3f, wave.d, parent)) < 0
         valid |= (k == CONDUCTOR) & (slot == 0) & front
-    if DIELECTRIC in geo.kinds:
+    if DIELECTRIC in geo.materials.kinds:
         valid |= (k == DIELECTRIC) & (slot < 2)
     valid &= dr.gather(UInt32, surf.prim, parent) != NO_PRIM
     child = dr.compress(valid)
@@ -150,21 +152,21 @@ def _spawn(geo, at: Vertices, wave: Wavefront, vertex: int, max_depth: int, sett
     weight = dr.gather(Array3f, wave.weight, parent)
     new_d, factor = Array3f(0.0), Array3f(0.0)
     rng = _rng(n, seed, 2)
-    if DIFFUSE in geo.kinds:
+    if DIFFUSE in geo.materials.kinds:
         is_diffuse = k == DIFFUSE
-        albedo = geo.albedo(dr.gather(UInt32, surf.material, parent), is_diffuse)
+        albedo = geo.materials.albedo(dr.gather(UInt32, surf.material, parent), is_diffuse)
         local, f = hemisphere_sample(albedo, rng.next_float32(), rng.next_float32(), settings.hemisphere)
         new_d = dr.select(is_diffuse, to_world(local, n_s), new_d)
         factor = dr.select(is_diffuse, f * (1.0 / settings.indirect), factor)
-    if CONDUCTOR in geo.kinds:
+    if CONDUCTOR in geo.materials.kinds:
         is_mirror = k == CONDUCTOR
         n_mirror = dr.gather(Array3f, surf.ns, parent)
         new_d = dr.select(is_mirror, reflect(d, n_mirror), new_d)
-        weight_mirror = geo.conductor_weight(dr.gather(UInt32, surf.material, parent), -dr.dot(n_mirror, d), is_mirror)
+        weight_mirror = geo.materials.conductor_weight(dr.gather(UInt32, surf.material, parent), -dr.dot(n_mirror, d), is_mirror)
         factor = dr.select(is_mirror, weight_mirror, factor)
-    if DIELECTRIC in geo.kinds:
+    if DIELECTRIC in geo.materials.kinds:
         is_glass = k == DIELECTRIC
-        int_ior, ext_ior = geo.iors(dr.gather(UInt32, surf.material, parent), is_glass)
+        int_ior, ext_ior = geo.materials.iors(dr.gather(UInt32, surf.material, parent), is_glass)
         fr, reflected, refracted, scale = dielectric_interface(d, dr.gather(Array3f, surf.ns, parent), int_ior, ext_ior)
         is_reflection = slot == 0
         new_d = dr.select(is_glass, dr.select(is_reflection, reflected, refracted), new_d)

@@ -1,4 +1,4 @@
-"""Fresnel reflectance, mirror reflection and refraction (tracer/bsdf.py) against float64 references.
+"""Fresnel reflectance, mirror reflection and refraction (tracer/materials) against float64 references.
 
 u = 2^-24 is the float32 unit roundoff; references are evaluated in float64 from the float32 inputs.
 """
@@ -7,7 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from tracer import bsdf
+from tracer.materials.dielectric import dielectric_interface
+from tracer.materials.diffuse import diffuse_brdf
+from tracer.materials.fresnel import fresnel_dielectric, reflect, refract
 from tracer.jit import Float
 
 from .float32 import U, arr3, f32, unit  # noqa: E402
@@ -25,7 +27,7 @@ def fresnel_ref(cos_i, eta):
 
 
 def fresnel(cos_i, eta):
-    f, cos_t, ratio = bsdf.fresnel_dielectric(Float(np.asarray(cos_i, np.float32)), Float(np.float32(eta)))
+    f, cos_t, ratio = fresnel_dielectric(Float(np.asarray(cos_i, np.float32)), Float(np.float32(eta)))
     return f.numpy().astype(np.float64), cos_t.numpy().astype(np.float64), ratio.numpy().astype(np.float64)
 
 
@@ -106,7 +108,7 @@ def _random_frames(n, seed):
 
 def test_reflect_obeys_eq5_and_preserves_length():
     d, n = _random_frames(2000, 1)
-    r = bsdf.reflect(arr3(d), arr3(n)).numpy().T.astype(np.float64)
+    r = reflect(arr3(d), arr3(n)).numpy().T.astype(np.float64)
     ref = d - 2 * np.sum(d * n, axis=1, keepdims=True) * n
     assert np.all(np.abs(r - ref) <= 8 * U)
     # angle of reflection equals angle of incidence, r - d is along n, and |r| = |d|
@@ -114,7 +116,7 @@ def test_reflect_obeys_eq5_and_preserves_length():
     assert np.allclose(np.cross(r - d, n), 0, atol=16 * U)
     assert np.allclose(np.linalg.norm(r, axis=1), np.linalg.norm(d, axis=1), atol=8 * U)
     # reflecting twice is the identity
-    rr = bsdf.reflect(arr3(r), arr3(n)).numpy().T
+    rr = reflect(arr3(r), arr3(n)).numpy().T
     assert np.allclose(rr, d, atol=16 * U)
 
 
@@ -122,9 +124,9 @@ def test_reflect_obeys_eq5_and_preserves_length():
 def test_refract_obeys_snell_and_is_unit(eta):
     d, n = _random_frames(4000, 2)
     cos_i = -np.sum(d * n, axis=1)
-    f, cos_t, ratio = bsdf.fresnel_dielectric(Float(cos_i.astype(np.float32)), Float(np.float32(eta)))
+    f, cos_t, ratio = fresnel_dielectric(Float(cos_i.astype(np.float32)), Float(np.float32(eta)))
     keep = f.numpy() < 1                       # total internal reflection has no refracted ray
-    t = bsdf.refract(arr3(d), arr3(n), Float(cos_i.astype(np.float32)), cos_t, ratio).numpy().T.astype(np.float64)
+    t = refract(arr3(d), arr3(n), Float(cos_i.astype(np.float32)), cos_t, ratio).numpy().T.astype(np.float64)
     t, d, n, cos_i = t[keep], d[keep], n[keep], cos_i[keep]
     assert keep.sum() > len(keep) // 5
     assert np.allclose(np.linalg.norm(t, axis=1), 1.0, atol=4 * U)
@@ -150,7 +152,7 @@ def test_dielectric_interface_entering_and_exiting():
     th = np.radians(30.0)
     d = np.array([[math.sin(th), 0.0, -math.cos(th)],    # from outside, against n: entering
                   [math.sin(th), 0.0, math.cos(th)]])    # from inside, along n: exiting
-    f, refl, refr, scale = bsdf.dielectric_interface(arr3(d), arr3(n), Float(int_ior), Float(ext_ior))
+    f, refl, refr, scale = dielectric_interface(arr3(d), arr3(n), Float(int_ior), Float(ext_ior))
     f, refl, refr, scale = f.numpy(), refl.numpy().T, refr.numpy().T, scale.numpy()
     # radiance scale (n1 / n2)^2: entering n1 = ext, n2 = int; exiting n1 = int, n2 = ext
     assert scale[0] == pytest.approx((ext_ior / int_ior) ** 2, rel=4 * U)
@@ -169,7 +171,7 @@ def test_dielectric_interface_entering_and_exiting():
 def test_dielectric_interface_total_internal_reflection_from_inside():
     th = np.radians(60.0)                                  # beyond the critical angle of glass
     d = np.array([[math.sin(th), 0.0, math.cos(th)]])      # inside, heading out
-    f, refl, _, _ = bsdf.dielectric_interface(arr3(d), arr3([[0.0, 0.0, 1.0]]), Float(1.5), Float(1.0))
+    f, refl, _, _ = dielectric_interface(arr3(d), arr3([[0.0, 0.0, 1.0]]), Float(1.5), Float(1.0))
     assert f.numpy()[0] == 1.0
     assert np.allclose(refl.numpy().T, [[math.sin(th), 0.0, -math.cos(th)]], atol=4 * U)
 
@@ -178,7 +180,7 @@ def test_dielectric_interface_eta_one_passes_straight_through():
     d, n = _random_frames(500, 3)
     d = np.concatenate([d, -d])                           # entering and exiting
     n = np.concatenate([n, n])
-    f, _, refr, scale = bsdf.dielectric_interface(arr3(d), arr3(n), Float(1.33), Float(1.33))
+    f, _, refr, scale = dielectric_interface(arr3(d), arr3(n), Float(1.33), Float(1.33))
     cos = np.abs(np.sum(d * n, axis=1))
     assert np.all(scale.numpy() == 1.0)
     assert np.all(f.numpy() <= (2 * U / cos ** 2) ** 2 + 1e-30)
@@ -189,5 +191,5 @@ def test_dielectric_interface_eta_one_passes_straight_through():
 
 def test_diffuse_brdf_is_albedo_over_pi():
     rho = np.array([[0.2, 0.5, 0.9]])
-    out = bsdf.diffuse_brdf(arr3(rho)).numpy().T
+    out = diffuse_brdf(arr3(rho)).numpy().T
     assert np.allclose(out, rho / math.pi, rtol=2 * U)

@@ -1,14 +1,7 @@
-"""Surface scattering with Mitsuba's semantics: Lambertian diffuse, smooth conductor (exact Fresnel),
-smooth dielectric."""
+"""Smooth interfaces: mirror and refracted directions (the report's eq. 5, 7, 8, 12) and Fresnel reflectances."""
 import drjit as dr
 
-from .jit import Array3f, Float
-from .sampling import INV_PI
-
-
-def diffuse_brdf(albedo: Array3f) -> Array3f:
-    """Lambertian BRDF f = rho / pi (the f of eq. 10)."""
-    return albedo * INV_PI
+from ..jit import Array3f, Float
 
 
 def reflect(d: Array3f, n: Array3f) -> Array3f:
@@ -36,23 +29,6 @@ def refract(d: Array3f, n_facing: Array3f, cos_i: Float, cos_t: Float, ratio: Fl
     return dr.normalize(dr.fma(n_facing, ratio * cos_i - cos_t, ratio * d))
 
 
-def dielectric_interface(d: Array3f, n: Array3f, int_ior: Float, ext_ior: Float):
-    """Everything both estimators need at a smooth dielectric hit by a ray of direction d.
-
-    Returns (F, reflected, refracted, radiance_scale): refracted radiance is scaled by (n1/n2)^2,
-    the 1/eta^2 of radiance crossing an interface.
-    """
-    cos_nd = dr.dot(n, d)
-    entering = cos_nd < 0
-    n_facing = dr.select(entering, n, -n)
-    cos_i = dr.abs(cos_nd)
-    eta = dr.select(entering, int_ior / ext_ior, ext_ior / int_ior)
-    f, cos_t, ratio = fresnel_dielectric(cos_i, eta)
-    reflected = reflect(d, n_facing)
-    refracted = refract(d, n_facing, cos_i, cos_t, ratio)
-    return f, reflected, refracted, ratio * ratio
-
-
 def fresnel_conductor(cos_i: Float, eta: Array3f, k: Array3f) -> Array3f:
     """Exact unpolarised Fresnel reflectance of a conductor of complex relative index eta + i k, per channel,
     for light arriving at cos_i > 0 (the s and p terms of Moeller's "Optics", as Mitsuba evaluates them)."""
@@ -75,18 +51,3 @@ def fresnel_diffuse_reflectance(eta: float) -> float:
     if eta < 1.0:
         return 0.0636 * inv + eta * (eta * -1.4399 + 0.7099) + 0.6681
     return ((((-1.36881 * inv + 4.98554) * inv - 7.80989) * inv + 6.75335) * inv - 3.4793) * inv + 0.919317
-
-
-def plastic_specular_probability(f_i: Float, specular_weight: Float) -> Float:
-    """Probability that Mitsuba's smooth plastic samples its specular layer, given the Fresnel reflectance
-    at the incident angle and the specular share of the mean reflectances."""
-    spec = f_i * specular_weight
-    return spec / (spec + (1.0 - f_i) * (1.0 - specular_weight))
-
-
-def plastic_diffuse(albedo: Array3f, fdr_int: Float, nonlinear: Float, inv_eta2: Float, f_i: Float,
-                    f_o: Float) -> Array3f:
-    """The diffuse layer's f * pi of Mitsuba's smooth plastic: the base's reflectance seen through the
-    interface twice, with internal reflections summed (linearly, or per colour if `nonlinear`)."""
-    denominator = 1.0 - dr.select(nonlinear > 0, albedo * fdr_int, Array3f(fdr_int))
-    return albedo / denominator * (inv_eta2 * (1.0 - f_i) * (1.0 - f_o))

@@ -1,0 +1,84 @@
+"""What a shape kind provides to the scene's kernels; tracer.geometry assembles one ShapeSet per kind.
+
+A scene's primitives are numbered kind after kind in the order of tracer.shapes.KINDS; a set holds the
+shapes of one kind as primitives [base, base + count). The host side gives the rows of the scene's
+per-primitive tables; the kernel side intersects rays, corrects normals and samples points on emitters.
+Kernels are traced from the scene: every method may write the shapes' constants into the kernel as
+literals, and a kind the scene lacks adds no instruction.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import drjit as dr
+import numpy as np
+
+from ..jit import INF, Array3f, Float, UInt32
+
+
+class ShapeSet:
+    planar = False    # rectangles and triangles: hit points are kept inside by their frames (shapes.planar)
+
+    def __init__(self, shapes: list, base: int):
+        self.shapes, self.base = list(shapes), base
+
+    # ---- host side ---------------------------------------------------------------------------------
+    @property
+    def count(self) -> int:
+        """The set's primitives."""
+        return len(self.shapes)
+
+    def shape_primitives(self) -> Iterator[tuple[object, int, int]]:
+        """(shape, first primitive, primitive count) of each shape."""
+        for i, s in enumerate(self.shapes):
+            yield s, self.base + i, 1
+
+    def prim_range(self, shape) -> tuple[int, int] | None:
+        """The primitive indices [lo, hi) of `shape`, None if it is not in this set."""
+        for s, lo, n in self.shape_primitives():
+            if s is shape:
+                return lo, lo + n
+        return None
+
+    def normals(self) -> np.ndarray:
+        """(count, 3) geometric normals of flat primitives (zero where the kernel computes them)."""
+        return np.zeros((self.count, 3))
+
+    def frames(self) -> np.ndarray:
+        """(count, 3, 3) origin and edge vectors of planar primitives."""
+        raise NotImplementedError
+
+    def culling_planes(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
+        """(primitive, point, normal) of the primitives that shadow rays may leave out when the whole scene
+        lies on one side of their plane (geometry._possible_occluders); curved shapes have none."""
+        return []
+
+    def sides(self, p0: np.ndarray, n: np.ndarray) -> np.ndarray:
+        """Signed distances to the plane (p0, n) of points whose hull holds the set's shapes."""
+        raise NotImplementedError
+
+    def describe(self) -> str:
+        raise NotImplementedError
+
+    # ---- kernel side -------------------------------------------------------------------------------
+    def candidates(self, o: Array3f, d: Array3f, t_min, skip: UInt32, target: UInt32 | None,
+                   only: set[int] | None) -> Iterator[tuple[int, Float, Float | None, Float | None]]:
+        """Per primitive (of `only`, if given): (index, t, b1, b2) of its hit, t = inf on a miss or for the
+        excluded primitives skip and target; (b1, b2): local coordinates where the kind has them."""
+        raise NotImplementedError
+
+    def normal(self, prim: UInt32, p: Array3f, n: Array3f) -> Array3f:
+        """The geometric normal at p where prim is one of the set's (n elsewhere)."""
+        return n
+
+    def sample(self, shape, lo: int, u1: Float, u2: Float, geo) -> tuple[Array3f, Array3f, UInt32]:
+        """A point uniform in area on an emitting `shape` (primitives from lo): (point, normal, primitive)."""
+        raise NotImplementedError(f"{type(shape).__name__} shapes do not emit")
+
+
+def exclude(t: Float, i: int, skip: UInt32, target: UInt32 | None) -> Float:
+    """t, or inf for primitive i when it is the one a ray leaves (skip) or the light it aims at (target)."""
+    out = skip == i
+    if target is not None:
+        out |= target == i
+    return dr.select(out, INF, t)

@@ -1,0 +1,163 @@
+"""Triangle meshes (Mitsuba's `obj`, `ply`, `serialized`): tested one by one when few, else through the BVH
+(tracer.bvh); interpolated shading normals and texture coordinates; area sampling."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import drjit as dr
+import numpy as np
+
+from ..bvh import BVHKernel
+from ..bvh_cache import cached_layout
+from ..jit import INF, Array3f, Bool, Float, UInt32, vec3
+from ..sampling import square_to_uniform_triangle
+from .base import ShapeSet, exclude
+from .triangle import ray_triangle
+
+if TYPE_CHECKING:
+    from ..materials import BSDF
+
+BVH_THRESHOLD = 56  # triangles above which a BVH beats the unrolled brute-force tests (measured: brute force wins at 48, the BVH at 64)
+
+
+@dataclass(eq=False)
+class Mesh:
+    """A triangle mesh in world space; `normals` are per-vertex shading normals, None for face normals."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    bsdf: BSDF
+    normals: np.ndarray | None = None
+    radiance: tuple[float, float, float] | None = None
+    name: str = ""
+    uvs: np.ndarray | None = None        # per-vertex texture coordinates; None: a triangle's (b1, b2)
+
+    @property
+    def triangle_areas(self) -> np.ndarray:
+        v = self.vertices[self.faces]
+        return 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+
+    @property
+    def area(self) -> float:
+        return self.triangle_areas.sum()
+
+    def extent_points(self) -> list[np.ndarray]:
+        return [self.vertices]
+
+
+class MeshSet(ShapeSet):
+    """Every mesh's triangles, in the order of the meshes; `bvh_threshold`: triangles above which they go
+    into a BVH."""
+    planar = True
+
+    def __init__(self, meshes: list[Mesh], base: int, bvh_threshold: int = BVH_THRESHOLD):
+        super().__init__(meshes, base)
+        self.tri_vertices = np.concatenate([m.vertices[m.faces] for m in meshes]) if meshes else np.zeros((0, 3, 3))
+        self.smooth = any(m.normals is not None for m in meshes)
+        self.bvh = BVHKernel(self.tri_vertices, base, cached_layout(self.tri_vertices)) \
+            if self.count > bvh_threshold else None
+        self.corner_normals = Float(self._corner_normals().ravel())
+        self.corner_uvs = None
+
+    @property
+    def count(self) -> int:
+        return len(self.tri_vertices)
+
+    def shape_primitives(self):
+        lo = self.base
+        for m in self.shapes:
+            yield m, lo, len(m.faces)
+            lo += len(m.faces)
+
+    def face_normals(self) -> np.ndarray:
+        v = self.tri_vertices
+        n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+    normals = face_normals
+
+    def _corner_normals(self) -> np.ndarray:
+        """(triangles, 3, 3) shading normals at each triangle's corners (its face normal on flat meshes)."""
+        out, flat = np.zeros((max(self.count, 1), 3, 3)), self.face_normals()
+        for m, lo, n in self.shape_primitives():
+            tri = slice(lo - self.base, lo - self.base + n)
+            out[tri] = m.normals[m.faces] if m.normals is not None else flat[tri][:, None, :]
+        return out
+
+    def build_uvs(self) -> None:
+        """Per triangle corner texture coordinates (a triangle's own (0,0), (1,0), (0,1) where its mesh has
+        none, so that interpolation gives (b1, b2) as Mitsuba); for scenes with textures."""
+        uvs = np.zeros((max(self.count, 1), 3, 2))
+        for m, lo, n in self.shape_primitives():
+            uvs[lo - self.base:lo - self.base + n] = m.uvs[m.faces] if m.uvs is not None else [[0, 0], [1, 0], [0, 1]]
+        self.corner_uvs = Float(uvs.ravel())
+
+    def frames(self) -> np.ndarray:
+        tv = self.tri_vertices
+        return np.stack([tv[:, 0], tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0]], 1)
+
+    def culling_planes(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
+        if self.bvh is not None:   # BVH triangles are all tested; only the unrolled ones are worth culling
+            return []
+        return [(self.base + j, v[0], n) for j, (v, n) in enumerate(zip(self.tri_vertices, self.face_normals()))]
+
+    def sides(self, p0: np.ndarray, n: np.ndarray) -> np.ndarray:
+        return (self.tri_vertices.reshape(-1, 3) - p0) @ n
+
+    def describe(self) -> str:
+        return f"{self.count} triangles (Moeller-Trumbore, {'in a BVH' if self.bvh is not None else 'brute force'})"
+
+    # ---- kernel side -------------------------------------------------------------------------------
+    def candidates(self, o, d, t_min, skip, target, only):
+        for j, v in enumerate(self.tri_vertices if self.bvh is None else ()):
+            i = self.base + j
+            if only is not None and i not in only:
+                continue
+            t, b1, b2 = ray_triangle(o, d, vec3(v[0]), vec3(v[1] - v[0]), vec3(v[2] - v[0]), t_min, INF)
+            yield i, exclude(t, i, skip, target), b1, b2
+
+    def _triangle(self, prim: UInt32, valid: Bool) -> tuple[UInt32, Bool]:
+        tri = prim - self.base
+        return tri, valid & (prim >= self.base) & (tri < self.count)
+
+    def shading_normal(self, prim: UInt32, b1: Float, b2: Float, n: Array3f) -> Array3f:
+        """The normal interpolated from the corners where prim is a triangle of a smooth mesh (n elsewhere)."""
+        if not self.smooth:
+            return n
+        tri, is_tri = self._triangle(prim, True)
+        b0 = 1.0 - b1 - b2
+        interp = (dr.gather(Array3f, self.corner_normals, tri * 3, is_tri) * b0
+                  + dr.gather(Array3f, self.corner_normals, tri * 3 + 1, is_tri) * b1
+                  + dr.gather(Array3f, self.corner_normals, tri * 3 + 2, is_tri) * b2)
+        return dr.select(is_tri, dr.normalize(interp), n)
+
+    def uv(self, prim: UInt32, valid: Bool, b1: Float, b2: Float, u: Float, v: Float) -> tuple[Float, Float]:
+        """Texture coordinates interpolated from the corners where prim is a triangle ((u, v) elsewhere)."""
+        if not self.count:
+            return u, v
+        tri, is_tri = self._triangle(prim, valid)
+        b0 = 1.0 - b1 - b2
+        c = [dr.gather(Float, self.corner_uvs, tri * 6 + k, is_tri) for k in range(6)]
+        return (dr.select(is_tri, c[0] * b0 + c[2] * b1 + c[4] * b2, u),
+                dr.select(is_tri, c[1] * b0 + c[3] * b1 + c[5] * b2, v))
+
+    def sample(self, m: Mesh, lo: int, u1: Float, u2: Float, geo) -> tuple[Array3f, Array3f, UInt32]:
+        """A triangle chosen by area, then a point uniform on it (u1 reused: rescaled within the chosen
+        triangle's share); the normal is the shading normal on smooth meshes."""
+        areas = m.triangle_areas
+        cdf = Float(np.cumsum(areas) / areas.sum())
+        tri = dr.binary_search(0, len(areas) - 1, lambda i: dr.gather(Float, cdf, i) <= u1)
+        below = dr.select(tri > 0, dr.gather(Float, cdf, tri - 1, tri > 0), 0.0)
+        above = dr.gather(Float, cdf, tri)
+        u1 = dr.clip((u1 - below) / (above - below), 0.0, 1.0 - 2.0 ** -24)
+        b1, b2 = square_to_uniform_triangle(u1, u2)
+        prim = UInt32(lo) + tri
+        corners = Float(m.vertices[m.faces].ravel())
+        v = [dr.gather(Array3f, corners, tri * 3 + c) for c in range(3)]
+        y = v[0] * (1.0 - b1 - b2) + v[1] * b1 + v[2] * b2
+        n = dr.gather(Array3f, geo.prim_normal, prim)
+        if m.normals is not None:
+            cn = [dr.gather(Array3f, self.corner_normals, (prim - self.base) * 3 + c) for c in range(3)]
+            n = dr.normalize(cn[0] * (1.0 - b1 - b2) + cn[1] * b1 + cn[2] * b2)
+        return y, n, prim
