@@ -18,7 +18,8 @@ SCENE = "disks.xml"
 
 def tracer_passes(estimator: str, max_depth: int, squares: bool = False) -> np.ndarray:
     def as_squares(scene):
-        scene.rectangles = [Rectangle(r.to_world, r.bsdf, r.radiance, r.name) for r in scene.rectangles]
+        scene.shapes = [Rectangle(r.to_world, r.bsdf, r.radiance, r.name) if isinstance(r, Rectangle) else r
+                        for r in scene.shapes]
     return plugin_passes(SCENE, estimator, max_depth, 9500, as_squares if squares else None)
 
 

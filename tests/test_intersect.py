@@ -478,7 +478,7 @@ def geo(tmp_path_factory):
     (folder / "tri.obj").write_text("v -1 -1 1\nv 3 -1 1\nv -1 3 1\nf 1 2 3\n")
     (folder / "tiny.xml").write_text(SCENE_XML)
     g = SceneGeometry(tracer.load_scene(folder / "tiny.xml"))
-    assert (g.meshes.base, g.meshes.count, g.spheres.base, g.n_prims) == (2, 1, 3, 4)
+    assert [(s.base, s.count) for s in g.shape_sets] == [(0, 2), (2, 1), (3, 1), (4, 0)] and g.n_prims == 4
     return g
 
 

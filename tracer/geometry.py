@@ -18,7 +18,7 @@ from .lights.envmap import EnvmapKernel
 from .materials import MaterialTables
 from .sampling import square_to_uniform_sphere
 from .scene import Scene
-from .shapes import BVH_THRESHOLD, CylinderSet, MeshSet, RectangleSet, SphereSet
+from .shapes import BVH_THRESHOLD, SETS, MeshSet, RectangleSet, ShapeSet
 from .shapes.planar import inset_point
 
 
@@ -54,13 +54,14 @@ class SceneGeometry:
 
     def __init__(self, scene: Scene, bvh_threshold: int = BVH_THRESHOLD, material_kinds: set[int] | None = None):
         self.scene = scene
-        self.rectangles = RectangleSet(scene.rectangles, 0)
-        self.meshes = MeshSet(scene.meshes, self.rectangles.count, bvh_threshold)
-        self.spheres = SphereSet(scene.spheres, self.meshes.base + self.meshes.count)
-        self.cylinders = CylinderSet(scene.cylinders, self.spheres.base + self.spheres.count)
-        self.shape_sets = (self.rectangles, self.meshes, self.spheres, self.cylinders)   # primitive order
-        self.n_prims = self.cylinders.base + self.cylinders.count
-        self.curved_base = self.spheres.base   # primitives below it are planar
+        self.shape_sets, base = [], 0          # one per kind, in primitive order
+        for cls in SETS:
+            options = {"bvh_threshold": bvh_threshold} if cls is MeshSet else {}
+            self.shape_sets.append(cls(scene.of_kind(cls.kind), base, **options))
+            base += self.shape_sets[-1].count
+        self.n_prims = base
+        self.rectangles, self.meshes = (self._set(cls) for cls in (RectangleSet, MeshSet))
+        self.curved_base = sum(s.count for s in self.shape_sets if s.planar)   # primitives below it are planar
         self.materials = MaterialTables(scene.bsdfs, material_kinds)
         self.emitters = scene.emitters
         self.environment = scene.environment
@@ -93,10 +94,13 @@ class SceneGeometry:
         self.prim_material = UInt32(material)
         self.prim_radiance = Float(radiance.ravel())
         self.prim_light_pdf = Float(light_pdf)
-        frames = np.concatenate([self.rectangles.frames(), self.meshes.frames()])
+        frames = np.concatenate([s.frames() for s in self.shape_sets if s.planar])
         self.prim_frame = Float((frames if len(frames) else np.zeros((1, 3, 3))).ravel())
         if self.materials.textured:
             self.meshes.build_uvs()
+
+    def _set(self, cls: type) -> ShapeSet:
+        return next(s for s in self.shape_sets if isinstance(s, cls))
 
     def _set_of(self, shape):
         """The ShapeSet holding `shape`, and its primitive range."""

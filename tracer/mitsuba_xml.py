@@ -22,13 +22,12 @@ from . import spectra, transform
 from .bitmap import BitmapError, read_bitmap
 from .film import ReconstructionFilter
 from .ior import named_conductor, named_ior
-from .meshes import MeshError, read_obj, read_ply, vertex_normals
 from .imageio import ImageError, read_exr_rgb
 from .lights import DirectionalLight, EnvironmentMap, PointLight
 from .materials import BSDF, Bitmap, Checkerboard
 from .scene import Camera, Scene, SceneError
-from .shapes import Cylinder, Mesh, Rectangle, Sphere
-from .serialized import read_serialized
+from .shapes import PLUGINS as SHAPE_PLUGINS
+from .shapes.base import ShapeArgs
 
 SUPPORTED = {
     "integrator": ("path",),
@@ -36,7 +35,7 @@ SUPPORTED = {
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian", "tent"),
     "sampler": ("independent",),
-    "shape": ("rectangle", "disk", "sphere", "cylinder", "obj", "ply", "serialized"),
+    "shape": tuple(SHAPE_PLUGINS),
     "bsdf": ("diffuse", "twosided", "conductor", "dielectric", "plastic"),
     "emitter": ("area", "constant", "envmap", "point", "spot", "directional"),
     "texture": ("checkerboard", "bitmap"),
@@ -63,16 +62,7 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("rfilter", "gaussian"): ("stddev",),
     ("rfilter", "tent"): ("radius",),
     ("sampler", "independent"): ("sample_count", "seed"),
-    ("shape", "rectangle"): ("to_world", "flip_normals", "silhouette_sampling_weight"),
-    ("shape", "disk"): ("to_world", "flip_normals", "silhouette_sampling_weight"),
-    ("shape", "cylinder"): ("p0", "p1", "radius", "to_world", "flip_normals", "silhouette_sampling_weight"),
-    ("shape", "sphere"): ("center", "radius", "to_world", "flip_normals", "silhouette_sampling_weight"),
-    ("shape", "obj"): ("filename", "face_normals", "flip_normals", "flip_tex_coords", "to_world",
-                       "silhouette_sampling_weight"),
-    ("shape", "ply"): ("filename", "face_normals", "flip_normals", "flip_tex_coords", "to_world",
-                       "silhouette_sampling_weight"),
-    ("shape", "serialized"): ("filename", "shape_index", "face_normals", "flip_normals", "to_world",
-                              "silhouette_sampling_weight"),
+    **{("shape", name): module.PLUGINS[name] for name, module in SHAPE_PLUGINS.items()},
     ("bsdf", "diffuse"): ("reflectance",),
     ("bsdf", "twosided"): ("allow_transmission",),
     ("bsdf", "conductor"): ("material", "eta", "k", "specular_reflectance"),
@@ -953,99 +943,5 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
     flip = props.get("flip_normals", False, ("boolean",))
     props.ignore("silhouette_sampling_weight", "flip_tex_coords")   # differentiable rendering; textures
     name = node.attrib.get("id", f"{kind}@{node.line}")
-    if kind in ("rectangle", "disk"):
-        props.finish()
-        if kind == "disk" and bsdf.texture is not None:
-            raise ctx.error(node, "a texture on a disk is unsupported; supported on rectangle and serialized shapes")
-        if flip:   # the normal is the image of local +z: mirror z, which leaves the shape in place
-            to_world = to_world @ np.diag([1.0, 1.0, -1.0, 1.0])
-        scene.rectangles.append(Rectangle(to_world, bsdf, radiance, name, disk=kind == "disk"))
-    elif kind == "cylinder":
-        scene.cylinders.append(_cylinder(ctx, node, props, to_world, flip, bsdf, bool(emitters), name))
-    elif kind == "sphere":
-        center = props.get("center", np.zeros(3), ("point",))
-        radius = float(props.get("radius", 1.0, ("float", "integer")))
-        props.finish()
-        if flip:
-            raise ctx.error(props.values["flip_normals"], "flip_normals on a sphere is unsupported")
-        if bsdf.texture is not None:
-            raise ctx.error(node, "a texture on a sphere is unsupported; supported on rectangle and serialized shapes")
-        linear = to_world[:3, :3]
-        scale = float(np.cbrt(abs(np.linalg.det(linear))))
-        if not np.allclose(linear.T @ linear, scale * scale * np.eye(3), rtol=0, atol=1e-6 * scale * scale):
-            raise ctx.error(node, "a sphere's to_world must scale uniformly (no shear or non-uniform scale)")
-        center = transform.apply_point(to_world, center)[0]
-        radius *= scale
-        if radius <= 0:
-            raise ctx.error(node, f"sphere radius must be positive, got {radius}")
-        scene.spheres.append(Sphere(center, radius, bsdf, name, radiance))
-    else:
-        scene.meshes.append(_mesh(ctx, node, kind, props, to_world, flip, bsdf, radiance, name))
-
-
-def _cylinder(ctx, node, props, to_world, flip, bsdf, emitter, name) -> Cylinder:
-    """Mitsuba's `cylinder`: the frame to_world * translate(p0) * (a frame along p1 - p0) * scale(r, r, |p1 - p0|)."""
-    p0 = props.get("p0", np.zeros(3), ("point",))
-    p1 = props.get("p1", np.array([0.0, 0.0, 1.0]), ("point",))
-    radius = float(props.get("radius", 1.0, ("float", "integer")))
-    props.finish()
-    if emitter:
-        raise ctx.error(node, "area emitters are supported on rectangle, disk, sphere and mesh shapes only")
-    if bsdf.texture is not None:
-        raise ctx.error(node, "a texture on a cylinder is unsupported; supported on rectangle and serialized shapes")
-    axis = p1 - p0
-    length = float(np.linalg.norm(axis))
-    if length == 0 or radius <= 0:
-        raise ctx.error(node, f"a cylinder needs p0 != p1 and a positive radius, got length {length}, radius {radius}")
-    z = axis / length
-    x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
-    x /= np.linalg.norm(x)
-    frame = np.eye(4)
-    frame[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1) @ np.diag([radius, radius, length])
-    frame[:3, 3] = p0
-    m = to_world @ frame
-    cols = m[:3, :3].T
-    tol = 1e-6 * float(np.max(np.abs(cols)) ** 2)
-    if (abs(cols[0] @ cols[1]) > tol or abs(cols[0] @ cols[2]) > tol or abs(cols[1] @ cols[2]) > tol
-            or abs(cols[0] @ cols[0] - cols[1] @ cols[1]) > tol or np.linalg.det(m[:3, :3]) <= 0):
-        raise ctx.error(node, "a cylinder's to_world must keep it circular (equal scale across the axis, no shear "
-                              "or mirroring)")
-    return Cylinder(m, bsdf, flip, name)
-
-
-def _mesh(ctx, node, kind, props, to_world, flip, bsdf, radiance, name) -> Mesh:
-    filename = props.get("filename", None, ("string",))
-    face_normals = props.get("face_normals", False, ("boolean",))
-    shape_index = props.get("shape_index", 0, ("integer",)) if kind == "serialized" else 0
-    props.finish()
-    if not filename:
-        raise ctx.error(node, f"{kind} shape needs a <string name=\"filename\">")
-    file = ctx.resolve(filename)
-    if not file.is_file():
-        raise ctx.error(node, f"mesh file '{filename}' not found (looked in {', '.join(map(str, ctx.resolver))})")
-    if bsdf.texture is not None and kind != "serialized":
-        raise ctx.error(node, f"a texture on a {kind} shape is unsupported; supported on rectangle and serialized shapes")
-    uvs = None
-    try:
-        if kind == "obj":
-            vertices, faces, normals = read_obj(file)
-        elif kind == "ply":
-            vertices, faces, normals = read_ply(file)
-        else:
-            if shape_index < 0:
-                raise ctx.error(node, f"shape_index must be non-negative, got {shape_index}")
-            vertices, faces, normals, uvs = read_serialized(file, shape_index)
-    except MeshError as e:
-        raise ctx.error(node, str(e)) from None
-    if flip and bsdf.texture is not None and uvs is None:
-        raise ctx.error(node, "flip_normals with a texture on a mesh without texture coordinates is unsupported")
-    vertices = transform.apply_point(to_world, vertices)
-    if flip:     # reversed winding flips the face normals
-        faces = faces[:, ::-1]
-    if face_normals:
-        normals = None
-    elif normals is None:
-        normals = vertex_normals(vertices, faces)
-    else:
-        normals = transform.apply_normal(to_world, normals) * (-1.0 if flip else 1.0)
-    return Mesh(vertices, faces, bsdf, normals, radiance, name, uvs)
+    module = SHAPE_PLUGINS[kind]
+    scene.shapes.append(module.from_xml(ctx, props, ShapeArgs(node, kind, to_world, flip, bsdf, radiance, name)))

@@ -13,7 +13,7 @@ import numpy as np
 from .film import ReconstructionFilter
 from .lights import DirectionalLight, EnvironmentMap, PointLight
 from .materials import BSDF
-from .shapes import Cylinder, Mesh, Rectangle, Sphere
+from .shapes import Cylinder, Mesh, Rectangle, Sphere, in_primitive_order
 
 
 class SceneError(ValueError):
@@ -53,10 +53,7 @@ class Camera:
 @dataclass
 class Scene:
     camera: Camera
-    rectangles: list[Rectangle] = field(default_factory=list)
-    meshes: list[Mesh] = field(default_factory=list)
-    spheres: list[Sphere] = field(default_factory=list)
-    cylinders: list[Cylinder] = field(default_factory=list)
+    shapes: list = field(default_factory=list)   # of the kinds in tracer.shapes, in the file's order
     spp: int = 4
     seed: int = 0
     max_depth: int = -1
@@ -67,9 +64,29 @@ class Scene:
     directional_lights: list[DirectionalLight] = field(default_factory=list)
     path: Path | None = None
 
+    def of_kind(self, kind: type) -> list:
+        return [s for s in self.shapes if isinstance(s, kind)]
+
     @property
-    def emitters(self) -> list[Rectangle | Mesh | Sphere]:
-        return [s for s in (*self.rectangles, *self.meshes, *self.spheres) if s.radiance is not None]
+    def rectangles(self) -> list[Rectangle]:
+        return self.of_kind(Rectangle)
+
+    @property
+    def meshes(self) -> list[Mesh]:
+        return self.of_kind(Mesh)
+
+    @property
+    def spheres(self) -> list[Sphere]:
+        return self.of_kind(Sphere)
+
+    @property
+    def cylinders(self) -> list[Cylinder]:
+        return self.of_kind(Cylinder)
+
+    @property
+    def emitters(self) -> list:
+        """The emitting shapes (area lights), in primitive order."""
+        return [s for s in in_primitive_order(self.shapes) if s.radiance is not None]
 
     def estimator_refusals(self, estimator: str) -> list[str]:
         """What the named estimator cannot render correctly in this scene, one line each (empty: nothing)."""
@@ -88,7 +105,7 @@ class Scene:
     @property
     def bsdfs(self) -> list[BSDF]:
         seen: list[BSDF] = []
-        for s in (*self.rectangles, *self.meshes, *self.spheres, *self.cylinders):
+        for s in in_primitive_order(self.shapes):
             if s.bsdf not in seen:
                 seen.append(s.bsdf)
         return seen
@@ -99,7 +116,7 @@ class Scene:
 
     def extent(self) -> float:
         """Diagonal of the bounding box of all geometry (the scene's length scale)."""
-        pts = [p for s in (*self.rectangles, *self.meshes, *self.spheres, *self.cylinders) for p in s.extent_points()]
+        pts = [p for s in self.shapes for p in s.extent_points()]
         if not pts:
             return 1.0
         allp = np.vstack([np.atleast_2d(p) for p in pts])

@@ -9,15 +9,35 @@ literals, and a kind the scene lacks adds no instruction.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import drjit as dr
 import numpy as np
 
 from ..jit import INF, Array3f, Float, UInt32
 
+if TYPE_CHECKING:
+    from ..materials import BSDF
+
+
+@dataclass
+class ShapeArgs:
+    """What every <shape> gives, read by the loader before the kind's own parameters (a kind's `from_xml`
+    reads those and builds the shape)."""
+
+    node: object                                   # the XML element, for errors
+    kind: str                                      # the plugin name
+    to_world: np.ndarray
+    flip: bool                                     # flip_normals
+    bsdf: BSDF
+    radiance: tuple[float, float, float] | None    # an area emitter's
+    name: str
+
 
 class ShapeSet:
-    planar = False    # rectangles and triangles: hit points are kept inside by their frames (shapes.planar)
+    kind: type            # the host dataclass of the shapes it holds
+    planar = False        # rectangles and triangles: hit points are kept inside by their frames (shapes.planar)
 
     def __init__(self, shapes: list, base: int):
         self.shapes, self.base = list(shapes), base

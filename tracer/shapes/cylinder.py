@@ -8,10 +8,12 @@ import drjit as dr
 import numpy as np
 
 from ..jit import INF, Array3f, Bool, Float, UInt32
-from .base import ShapeSet
+from .base import ShapeArgs, ShapeSet
 
 if TYPE_CHECKING:
     from ..materials import BSDF
+
+PLUGINS = {"cylinder": ("p0", "p1", "radius", "to_world", "flip_normals", "silhouette_sampling_weight")}
 
 
 @dataclass(eq=False)
@@ -33,6 +35,37 @@ class Cylinder:
 
     def extent_points(self) -> list[np.ndarray]:
         return [self.corners]
+
+
+def from_xml(ctx, props, a: ShapeArgs) -> Cylinder:
+    """Mitsuba's `cylinder`: the frame to_world * translate(p0) * (a frame along p1 - p0) * scale(r, r, |p1 - p0|)."""
+    p0 = props.get("p0", np.zeros(3), ("point",))
+    p1 = props.get("p1", np.array([0.0, 0.0, 1.0]), ("point",))
+    radius = float(props.get("radius", 1.0, ("float", "integer")))
+    props.finish()
+    node = a.node
+    if a.radiance is not None:
+        raise ctx.error(node, "area emitters are supported on rectangle, disk, sphere and mesh shapes only")
+    if a.bsdf.texture is not None:
+        raise ctx.error(node, "a texture on a cylinder is unsupported; supported on rectangle and serialized shapes")
+    axis = p1 - p0
+    length = float(np.linalg.norm(axis))
+    if length == 0 or radius <= 0:
+        raise ctx.error(node, f"a cylinder needs p0 != p1 and a positive radius, got length {length}, radius {radius}")
+    z = axis / length
+    x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+    x /= np.linalg.norm(x)
+    frame = np.eye(4)
+    frame[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1) @ np.diag([radius, radius, length])
+    frame[:3, 3] = p0
+    m = a.to_world @ frame
+    cols = m[:3, :3].T
+    tol = 1e-6 * float(np.max(np.abs(cols)) ** 2)
+    if (abs(cols[0] @ cols[1]) > tol or abs(cols[0] @ cols[2]) > tol or abs(cols[1] @ cols[2]) > tol
+            or abs(cols[0] @ cols[0] - cols[1] @ cols[1]) > tol or np.linalg.det(m[:3, :3]) <= 0):
+        raise ctx.error(node, "a cylinder's to_world must keep it circular (equal scale across the axis, no shear "
+                              "or mirroring)")
+    return Cylinder(m, a.bsdf, a.flip, a.name)
 
 
 def ray_cylinder(o: Array3f, d: Array3f, to_local: np.ndarray, t_min, t_max, leaving: Bool) -> Float:
@@ -63,6 +96,7 @@ def ray_cylinder(o: Array3f, d: Array3f, to_local: np.ndarray, t_min, t_max, lea
 
 
 class CylinderSet(ShapeSet):
+    kind = Cylinder
     def sides(self, p0: np.ndarray, n: np.ndarray) -> np.ndarray:
         return (np.reshape([c.corners for c in self.shapes], (-1, 3)) - p0) @ n
 

@@ -8,16 +8,23 @@ from typing import TYPE_CHECKING
 import drjit as dr
 import numpy as np
 
+from .. import transform
 from ..bvh import BVHKernel
 from ..bvh_cache import cached_layout
+from ..meshes import MeshError, read_obj, read_ply, vertex_normals
+from ..serialized import read_serialized
 from ..jit import INF, Array3f, Bool, Float, UInt32, vec3
 from ..sampling import square_to_uniform_triangle
-from .base import ShapeSet, exclude
+from .base import ShapeArgs, ShapeSet, exclude
 from .triangle import ray_triangle
 
 if TYPE_CHECKING:
     from ..materials import BSDF
 
+PLUGINS = {"obj": ("filename", "face_normals", "flip_normals", "flip_tex_coords", "to_world", "silhouette_sampling_weight"),
+           "ply": ("filename", "face_normals", "flip_normals", "flip_tex_coords", "to_world", "silhouette_sampling_weight"),
+           "serialized": ("filename", "shape_index", "face_normals", "flip_normals", "to_world",
+                          "silhouette_sampling_weight")}
 BVH_THRESHOLD = 56  # triangles above which a BVH beats the unrolled brute-force tests (measured: brute force wins at 48, the BVH at 64)
 
 
@@ -46,9 +53,49 @@ class Mesh:
         return [self.vertices]
 
 
+def from_xml(ctx, props, a: ShapeArgs) -> Mesh:
+    node, kind, bsdf, flip, to_world = a.node, a.kind, a.bsdf, a.flip, a.to_world
+    filename = props.get("filename", None, ("string",))
+    face_normals = props.get("face_normals", False, ("boolean",))
+    shape_index = props.get("shape_index", 0, ("integer",)) if kind == "serialized" else 0
+    props.finish()
+    if not filename:
+        raise ctx.error(node, f"{kind} shape needs a <string name=\"filename\">")
+    file = ctx.resolve(filename)
+    if not file.is_file():
+        raise ctx.error(node, f"mesh file '{filename}' not found (looked in {', '.join(map(str, ctx.resolver))})")
+    if bsdf.texture is not None and kind != "serialized":
+        raise ctx.error(node, f"a texture on a {kind} shape is unsupported; supported on rectangle and serialized shapes")
+    uvs = None
+    try:
+        if kind == "obj":
+            vertices, faces, normals = read_obj(file)
+        elif kind == "ply":
+            vertices, faces, normals = read_ply(file)
+        else:
+            if shape_index < 0:
+                raise ctx.error(node, f"shape_index must be non-negative, got {shape_index}")
+            vertices, faces, normals, uvs = read_serialized(file, shape_index)
+    except MeshError as e:
+        raise ctx.error(node, str(e)) from None
+    if flip and bsdf.texture is not None and uvs is None:
+        raise ctx.error(node, "flip_normals with a texture on a mesh without texture coordinates is unsupported")
+    vertices = transform.apply_point(to_world, vertices)
+    if flip:     # reversed winding flips the face normals
+        faces = faces[:, ::-1]
+    if face_normals:
+        normals = None
+    elif normals is None:
+        normals = vertex_normals(vertices, faces)
+    else:
+        normals = transform.apply_normal(to_world, normals) * (-1.0 if flip else 1.0)
+    return Mesh(vertices, faces, bsdf, normals, a.radiance, a.name, uvs)
+
+
 class MeshSet(ShapeSet):
     """Every mesh's triangles, in the order of the meshes; `bvh_threshold`: triangles above which they go
     into a BVH."""
+    kind = Mesh
     planar = True
 
     def __init__(self, meshes: list[Mesh], base: int, bvh_threshold: int = BVH_THRESHOLD):

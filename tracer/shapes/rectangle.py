@@ -10,11 +10,15 @@ import numpy as np
 from .. import transform
 from ..jit import INF, Array3f, Float, UInt32, vec3
 from ..sampling import square_to_uniform_disk_concentric
-from .base import ShapeSet, exclude
+from .base import ShapeArgs, ShapeSet, exclude
 from .planar import EDGE_MARGIN
 
 if TYPE_CHECKING:
     from ..materials import BSDF
+
+# the XML plugins this module reads, with every parameter Mitsuba 3 reads for them
+PLUGINS = {"rectangle": ("to_world", "flip_normals", "silhouette_sampling_weight"),
+           "disk": ("to_world", "flip_normals", "silhouette_sampling_weight")}
 
 
 @dataclass(eq=False)
@@ -57,6 +61,16 @@ class Rectangle:
         return [self.center + s * e for e in self.edges for s in (-1, 1)]
 
 
+def from_xml(ctx, props, a: ShapeArgs) -> Rectangle:
+    props.finish()
+    if a.kind == "disk" and a.bsdf.texture is not None:
+        raise ctx.error(a.node, "a texture on a disk is unsupported; supported on rectangle and serialized shapes")
+    to_world = a.to_world
+    if a.flip:   # the normal is the image of local +z: mirror z, which leaves the shape in place
+        to_world = to_world @ np.diag([1.0, 1.0, -1.0, 1.0])
+    return Rectangle(to_world, a.bsdf, a.radiance, a.name, disk=a.kind == "disk")
+
+
 def ray_rectangle(o: Array3f, d: Array3f, center, du, dv, n, t_min, t_max) -> tuple[Float, Float, Float]:
     """Ray-plane intersection (eq. 2-4) and a bounds test in the rectangle's own coordinates.
 
@@ -75,6 +89,7 @@ def ray_rectangle(o: Array3f, d: Array3f, center, du, dv, n, t_min, t_max) -> tu
 
 
 class RectangleSet(ShapeSet):
+    kind = Rectangle
     planar = True
 
     def normals(self) -> np.ndarray:

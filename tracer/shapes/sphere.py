@@ -7,12 +7,15 @@ from typing import TYPE_CHECKING
 import drjit as dr
 import numpy as np
 
+from .. import transform
 from ..jit import INF, Array3f, Bool, Float, UInt32, vec3
 from ..sampling import square_to_uniform_sphere
-from .base import ShapeSet
+from .base import ShapeArgs, ShapeSet
 
 if TYPE_CHECKING:
     from ..materials import BSDF
+
+PLUGINS = {"sphere": ("center", "radius", "to_world", "flip_normals", "silhouette_sampling_weight")}
 
 
 @dataclass(eq=False)
@@ -29,6 +32,25 @@ class Sphere:
 
     def extent_points(self) -> list[np.ndarray]:
         return [np.stack([self.center - self.radius, self.center + self.radius])]
+
+
+def from_xml(ctx, props, a: ShapeArgs) -> Sphere:
+    center = props.get("center", np.zeros(3), ("point",))
+    radius = float(props.get("radius", 1.0, ("float", "integer")))
+    props.finish()
+    if a.flip:
+        raise ctx.error(props.values["flip_normals"], "flip_normals on a sphere is unsupported")
+    if a.bsdf.texture is not None:
+        raise ctx.error(a.node, "a texture on a sphere is unsupported; supported on rectangle and serialized shapes")
+    linear = a.to_world[:3, :3]
+    scale = float(np.cbrt(abs(np.linalg.det(linear))))
+    if not np.allclose(linear.T @ linear, scale * scale * np.eye(3), rtol=0, atol=1e-6 * scale * scale):
+        raise ctx.error(a.node, "a sphere's to_world must scale uniformly (no shear or non-uniform scale)")
+    center = transform.apply_point(a.to_world, center)[0]
+    radius *= scale
+    if radius <= 0:
+        raise ctx.error(a.node, f"sphere radius must be positive, got {radius}")
+    return Sphere(center, radius, a.bsdf, a.name, a.radiance)
 
 
 def ray_sphere(o: Array3f, d: Array3f, center, radius: float, t_min, t_max, leaving: Bool) -> Float:
@@ -56,6 +78,7 @@ def ray_sphere(o: Array3f, d: Array3f, center, radius: float, t_min, t_max, leav
 
 
 class SphereSet(ShapeSet):
+    kind = Sphere
     def sides(self, p0: np.ndarray, n: np.ndarray) -> np.ndarray:
         return np.array([[(s.center - p0) @ n - s.radius, (s.center - p0) @ n + s.radius]
                          for s in self.shapes]).ravel()
