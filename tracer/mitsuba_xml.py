@@ -22,12 +22,12 @@ from . import spectra, transform
 from .bitmap import BitmapError, read_bitmap
 from .film import ReconstructionFilter
 from .ior import named_conductor, named_ior
-from .imageio import ImageError, read_exr_rgb
-from .lights import DirectionalLight, EnvironmentMap, PointLight
+from .lights import PLUGINS as LIGHT_PLUGINS
 from .materials import BSDF, Bitmap, Checkerboard
 from .scene import Camera, Scene, SceneError
 from .shapes import PLUGINS as SHAPE_PLUGINS
 from .shapes.base import ShapeArgs
+from .spectra import rgb
 
 SUPPORTED = {
     "integrator": ("path",),
@@ -37,7 +37,7 @@ SUPPORTED = {
     "sampler": ("independent",),
     "shape": tuple(SHAPE_PLUGINS),
     "bsdf": ("diffuse", "twosided", "conductor", "dielectric", "plastic"),
-    "emitter": ("area", "constant", "envmap", "point", "spot", "directional"),
+    "emitter": ("area", *LIGHT_PLUGINS),
     "texture": ("checkerboard", "bitmap"),
 }
 PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf", "emitter", "texture",
@@ -72,11 +72,7 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("texture", "bitmap"): ("filename", "bitmap", "data", "raw", "filter_type", "wrap_mode", "to_uv", "format",
                             "accel"),
     ("emitter", "area"): ("radiance", "sampling_weight"),
-    ("emitter", "point"): ("position", "to_world", "intensity", "sampling_weight"),
-    ("emitter", "spot"): ("to_world", "intensity", "cutoff_angle", "beam_width", "texture", "sampling_weight"),
-    ("emitter", "directional"): ("direction", "to_world", "irradiance", "sampling_weight"),
-    ("emitter", "constant"): ("radiance", "sampling_weight", "to_world"),
-    ("emitter", "envmap"): ("filename", "bitmap", "scale", "to_world", "mis_compensation", "sampling_weight"),
+    **{("emitter", name): module.PLUGINS[name] for name, module in LIGHT_PLUGINS.items()},
 }
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 DEFAULT_FILM = {"width": 768, "height": 576, "rfilter": ReconstructionFilter("gaussian")}   # Mitsuba's hdrfilm
@@ -507,7 +503,7 @@ def _check_type(ctx: _Context, node: Node) -> str:
 
 
 def _build_scene(ctx: _Context, root: Node) -> Scene | None:
-    integrators, sensors, shapes, environments, points, directionals = [], [], [], [], [], []
+    integrators, sensors, shapes, lights = [], [], [], []
     for node in root.children:
         if node.tag == "integrator":
             integrators.append(node)
@@ -519,12 +515,8 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
             ctx.attempt(_declared, ctx, node)        # used through <ref>; built (and checked) on their own
         elif node.tag == "emitter" and "id" in node.attrib and _emitter_type(node) == "area":
             ctx.attempt(_declared, ctx, node)        # an area light declared for a shape's <ref>
-        elif node.tag == "emitter" and _emitter_type(node) in ("constant", "envmap"):
-            environments.append(node)
-        elif node.tag == "emitter" and _emitter_type(node) in ("point", "spot"):
-            points.append(node)
-        elif node.tag == "emitter" and _emitter_type(node) == "directional":
-            directionals.append(node)
+        elif node.tag == "emitter" and _emitter_type(node) in LIGHT_PLUGINS:
+            lights.append(node)
         elif node.tag in PLUGIN_TAGS:
             if ctx.attempt(_check_type, ctx, node) is not None:
                 ctx.errors.append(str(ctx.error(node, f"a top-level <{node.tag}> is unsupported; supported at the "
@@ -534,6 +526,7 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
                                                   "integrator, sensor, shape and plugins with an id")))
     for extra in integrators[1:]:
         ctx.errors.append(str(ctx.error(extra, "only one integrator may be specified per scene (as in Mitsuba)")))
+    environments = [n for n in lights if LIGHT_PLUGINS[_emitter_type(n)].ENVIRONMENT]
     for extra in environments[1:]:
         ctx.errors.append(str(ctx.error(extra, "only one environment emitter may be specified per scene (as in Mitsuba)")))
     for extra in sensors[1:]:
@@ -552,21 +545,19 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
         rr_depth=int(integrator.get("rr_depth", 5)),
         path=ctx.path,
     )
-    for node in points:
-        light = ctx.attempt(_spot_light if _emitter_type(node) == "spot" else _point_light, ctx, node)
-        if light is not None:
-            scene.point_lights.append(light)
-    for node in directionals:
-        light = ctx.attempt(_directional_light, ctx, node)
-        if light is not None:
-            scene.directional_lights.append(light)
-    if environments and _emitter_type(environments[0]) == "envmap":
-        scene.envmap = ctx.attempt(_envmap, ctx, environments[0])
-    elif environments:
-        scene.environment = ctx.attempt(_constant_light, ctx, environments[0])
+    for node in lights:
+        if node not in environments[1:]:
+            light = ctx.attempt(_light, ctx, node)
+            if light is not None:
+                scene.lights.append(light)
     for node in shapes:
         ctx.attempt(_add_shape, ctx, scene, node)
     return scene
+
+
+def _light(ctx: _Context, node: Node):
+    props = _Props(ctx, node, _check_type(ctx, node), emitter=True)
+    return LIGHT_PLUGINS[_emitter_type(node)].from_xml(ctx, props, node)
 
 
 def _emitter_type(node: Node) -> str:
@@ -731,7 +722,7 @@ def _bsdf(ctx: _Context, node: Node) -> BSDF:
         props.finish()
         if np.any(spec < 0) or np.any(spec > 1):
             raise ctx.error(node, f"specular_reflectance must lie in [0, 1], got {tuple(float(x) for x in spec)}")
-        return BSDF("conductor", _rgb(spec), eta=_rgb(eta), k=_rgb(k))
+        return BSDF("conductor", rgb(spec), eta=rgb(eta), k=rgb(k))
     if kind == "plastic":
         ior = {k: _ior(ctx, props, k, d) for k, d in (("int_ior", "polypropylene"), ("ext_ior", "air"))}
         rho, spec = props.colour("diffuse_reflectance", 0.5, textured=True), props.colour("specular_reflectance", 1.0)
@@ -742,10 +733,10 @@ def _bsdf(ctx: _Context, node: Node) -> BSDF:
             rho = np.full(3, 0.5)
         for name, value in (("diffuse_reflectance", rho), ("specular_reflectance", spec)):
             if np.any(value < 0) or np.any(value > 1):
-                raise ctx.error(node, f"{name} must lie in [0, 1], got {_rgb(value)}")
+                raise ctx.error(node, f"{name} must lie in [0, 1], got {rgb(value)}")
         if min(ior.values()) <= 0:
             raise ctx.error(node, "indices of refraction must be positive")
-        return BSDF("plastic", _rgb(rho), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"], specular_reflectance=_rgb(spec),
+        return BSDF("plastic", rgb(rho), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"], specular_reflectance=rgb(spec),
                     nonlinear=bool(nonlinear), texture=texture)
     ior = {k: _ior(ctx, props, k, d) for k, d in (("int_ior", "bk7"), ("ext_ior", "air"))}
     for name in ("specular_reflectance", "specular_transmittance"):
@@ -767,8 +758,8 @@ def _texture(ctx: _Context, node: Node) -> Checkerboard | Bitmap:
     props.finish()
     for name, c in zip(("color0", "color1"), colours):
         if np.any(c < 0) or np.any(c > 1):
-            raise ctx.error(node, f"{name} must lie in [0, 1], got {_rgb(c)}")
-    return Checkerboard(_rgb(colours[0]), _rgb(colours[1]), _to_uv(m))
+            raise ctx.error(node, f"{name} must lie in [0, 1], got {rgb(c)}")
+    return Checkerboard(rgb(colours[0]), rgb(colours[1]), _to_uv(m))
 
 
 def _to_uv(m: np.ndarray) -> tuple[tuple[float, float, float], ...]:
@@ -801,10 +792,6 @@ def _bitmap(ctx: _Context, node: Node, props: _Props) -> Bitmap:
     return Bitmap(image, _to_uv(m), modes["filter_type"] == "bilinear", modes["wrap_mode"] == "repeat")
 
 
-def _rgb(value: np.ndarray) -> tuple[float, float, float]:
-    return tuple(float(x) for x in value)
-
-
 def _ior(ctx: _Context, props: _Props, name: str, default: str) -> float:
     value = props.get(name, default, ("float", "integer", "string"))
     if isinstance(value, str):
@@ -828,104 +815,6 @@ def _area_light(ctx: _Context, node: Node) -> tuple[float, float, float]:
     if np.any(value < 0):
         raise ctx.error(node, f"radiance must be non-negative, got {tuple(float(x) for x in value)}")
     return tuple(float(x) for x in value)
-
-
-def _constant_light(ctx: _Context, node: Node) -> tuple[float, float, float]:
-    """Mitsuba's `constant` emitter: the same radiance arriving from every direction."""
-    props = _Props(ctx, node, _check_type(ctx, node), emitter=True)
-    value = props.colour("radiance", 1.0)
-    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
-    props.ignore("to_world")              # a uniform environment looks the same however it is turned
-    props.finish()
-    if np.any(value < 0):
-        raise ctx.error(node, f"radiance must be non-negative, got {tuple(float(x) for x in value)}")
-    return _rgb(value)
-
-
-def _point_light(ctx: _Context, node: Node) -> PointLight:
-    """Mitsuba's `point` emitter: at `position`, or at the translation of `to_world`."""
-    props = _Props(ctx, node, _check_type(ctx, node), emitter=True)
-    if props.has("position") and props.has("to_world"):
-        raise ctx.error(node, "give either position or to_world, not both (as in Mitsuba)")
-    position = props.get("position", None, ("point",))
-    if position is None:
-        position = props.get("to_world", np.eye(4), ("transform",))[:3, 3]
-    intensity = props.colour("intensity", 1.0)
-    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
-    props.finish()
-    if np.any(intensity < 0):
-        raise ctx.error(node, f"intensity must be non-negative, got {_rgb(intensity)}")
-    return PointLight(np.asarray(position, float), _rgb(intensity), node.attrib.get("id", f"point@{node.line}"))
-
-
-def _spot_light(ctx: _Context, node: Node) -> PointLight:
-    """Mitsuba's `spot` emitter: at to_world's origin, along its +z, with a linear falloff in angle."""
-    props = _Props(ctx, node, _check_type(ctx, node), emitter=True)
-    to_world = props.get("to_world", np.eye(4), ("transform",))
-    intensity = props.colour("intensity", 1.0)
-    cutoff = float(props.get("cutoff_angle", 20.0, ("float", "integer")))
-    beam = float(props.get("beam_width", cutoff * 3.0 / 4.0, ("float", "integer")))
-    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
-    props.finish()
-    linear = to_world[:3, :3]
-    if not np.allclose(linear.T @ linear, np.eye(3), atol=1e-5):
-        raise ctx.error(node, "a spot light's to_world must be a rotation and a translation (no scale or shear)")
-    if not 0 < beam < cutoff < 180:
-        raise ctx.error(node, f"need 0 < beam_width < cutoff_angle < 180 degrees, got {beam} and {cutoff}")
-    if np.any(intensity < 0):
-        raise ctx.error(node, f"intensity must be non-negative, got {_rgb(intensity)}")
-    axis = linear[:, 2] / np.linalg.norm(linear[:, 2])
-    return PointLight(to_world[:3, 3].copy(), _rgb(intensity), node.attrib.get("id", f"spot@{node.line}"),
-                      spot=(axis, cutoff, beam))
-
-
-def _directional_light(ctx: _Context, node: Node) -> DirectionalLight:
-    """Mitsuba's `directional` emitter: along `direction`, or along to_world's +z."""
-    props = _Props(ctx, node, _check_type(ctx, node), emitter=True)
-    if props.has("direction") and props.has("to_world"):
-        raise ctx.error(node, "give either direction or to_world, not both (as in Mitsuba)")
-    if props.has("direction"):
-        d = props.get("direction", tags=("vector",))
-    else:
-        linear = props.get("to_world", np.eye(4), ("transform",))[:3, :3]
-        if not np.allclose(linear.T @ linear, np.eye(3), atol=1e-5):
-            raise ctx.error(node, "a directional light's to_world must be a rotation (no scale or shear)")
-        d = linear[:, 2]
-    irradiance = props.colour("irradiance", 1.0)
-    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
-    props.finish()
-    if not np.any(d):
-        raise ctx.error(node, "the direction is zero")
-    if np.any(irradiance < 0):
-        raise ctx.error(node, f"irradiance must be non-negative, got {_rgb(irradiance)}")
-    return DirectionalLight(d / np.linalg.norm(d), _rgb(irradiance), node.attrib.get("id", f"directional@{node.line}"))
-
-
-def _envmap(ctx: _Context, node: Node) -> EnvironmentMap:
-    """Mitsuba's `envmap` from an OpenEXR file (tracer/lights/envmap.py)."""
-    props = _Props(ctx, node, _check_type(ctx, node), emitter=True)
-    filename = props.get("filename", None, ("string",))
-    scale = props.get("scale", 1.0, ("float", "integer"))
-    to_world = props.get("to_world", np.eye(4), ("transform",))
-    props.ignore("sampling_weight", "mis_compensation")    # how often and where it is sampled, not the estimate
-    props.finish()
-    if filename is None:
-        raise ctx.error(node, "envmap needs a <string name=\"filename\"> (an OpenEXR image)")
-    if not filename.lower().endswith(".exr"):
-        raise ctx.error(props.values["filename"], f"envmap '{filename}': only OpenEXR images are supported")
-    linear = to_world[:3, :3]
-    if not np.allclose(linear.T @ linear, np.eye(3), atol=1e-5):
-        raise ctx.error(node, "an envmap's to_world must be a rotation (no scale or shear)")
-    if scale < 0:
-        raise ctx.error(node, f"scale must be non-negative, got {scale}")
-    file = ctx.resolve(filename)
-    if not file.is_file():
-        raise ctx.error(node, f"image '{filename}' not found (looked in {', '.join(map(str, ctx.resolver))})")
-    try:
-        image = read_exr_rgb(file)
-    except ImageError as e:
-        raise ctx.error(node, str(e)) from None
-    return EnvironmentMap(image * np.float32(scale), to_world, node.attrib.get("id", f"envmap@{node.line}"))
 
 
 def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .film import ReconstructionFilter
-from .lights import DirectionalLight, EnvironmentMap, PointLight
+from .lights import ConstantEnvironment, DirectionalLight, EnvironmentMap, PointLight
 from .materials import BSDF
 from .shapes import Cylinder, Mesh, Rectangle, Sphere, in_primitive_order
 
@@ -58,10 +58,7 @@ class Scene:
     seed: int = 0
     max_depth: int = -1
     rr_depth: int = 5
-    environment: tuple[float, float, float] | None = None   # a `constant` emitter's radiance, from all directions
-    envmap: EnvironmentMap | None = None                     # or an `envmap` emitter
-    point_lights: list[PointLight] = field(default_factory=list)
-    directional_lights: list[DirectionalLight] = field(default_factory=list)
+    lights: list = field(default_factory=list)    # of the kinds in tracer.lights (area lights: emitting shapes)
     path: Path | None = None
 
     def of_kind(self, kind: type) -> list:
@@ -82,6 +79,23 @@ class Scene:
     @property
     def cylinders(self) -> list[Cylinder]:
         return self.of_kind(Cylinder)
+
+    @property
+    def point_lights(self) -> list[PointLight]:
+        return [x for x in self.lights if isinstance(x, PointLight)]
+
+    @property
+    def directional_lights(self) -> list[DirectionalLight]:
+        return [x for x in self.lights if isinstance(x, DirectionalLight)]
+
+    @property
+    def environment(self) -> tuple[float, float, float] | None:
+        """A `constant` emitter's radiance, arriving from all directions."""
+        return next((x.radiance for x in self.lights if isinstance(x, ConstantEnvironment)), None)
+
+    @property
+    def envmap(self) -> EnvironmentMap | None:
+        return next((x for x in self.lights if isinstance(x, EnvironmentMap)), None)
 
     @property
     def emitters(self) -> list:

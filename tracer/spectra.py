@@ -136,3 +136,8 @@ def to_rgb(text: str, emitter: bool, unbounded: bool = False) -> np.ndarray:
         return value * XYZ_TO_SRGB.sum(axis=1) if emitter else np.full(3, value)
     wavelengths, values = parse_pairs(text)
     return list_to_srgb(wavelengths, values, bounded=not (emitter or unbounded), illuminant=not emitter)
+
+
+def rgb(value) -> tuple[float, float, float]:
+    """An RGB value (an array of three) as the tuple of floats scene descriptions hold."""
+    return tuple(float(x) for x in value)

@@ -17,9 +17,12 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
+from ..imageio import ImageError, read_exr_rgb
 from ..jit import Array3f, Float, UInt32
 from ..sampling import square_to_uniform_sphere
 
+PLUGINS = {"envmap": ("filename", "bitmap", "scale", "to_world", "mis_compensation", "sampling_weight")}
+ENVIRONMENT = True    # at most one environment emitter per scene
 MIX_UNIFORM = 0.1
 LUMINANCE = np.array([0.212671, 0.715160, 0.072169])   # Rec. 709 Y, as Mitsuba's luminance()
 
@@ -32,6 +35,32 @@ class EnvironmentMap:
     image: np.ndarray          # (H, W, 3) float32 linear RGB
     to_world: np.ndarray
     name: str = ""
+
+
+def from_xml(ctx, props, node) -> EnvironmentMap:
+    """Mitsuba's `envmap` from an OpenEXR file."""
+    filename = props.get("filename", None, ("string",))
+    scale = props.get("scale", 1.0, ("float", "integer"))
+    to_world = props.get("to_world", np.eye(4), ("transform",))
+    props.ignore("sampling_weight", "mis_compensation")    # how often and where it is sampled, not the estimate
+    props.finish()
+    if filename is None:
+        raise ctx.error(node, "envmap needs a <string name=\"filename\"> (an OpenEXR image)")
+    if not filename.lower().endswith(".exr"):
+        raise ctx.error(props.values["filename"], f"envmap '{filename}': only OpenEXR images are supported")
+    linear = to_world[:3, :3]
+    if not np.allclose(linear.T @ linear, np.eye(3), atol=1e-5):
+        raise ctx.error(node, "an envmap's to_world must be a rotation (no scale or shear)")
+    if scale < 0:
+        raise ctx.error(node, f"scale must be non-negative, got {scale}")
+    file = ctx.resolve(filename)
+    if not file.is_file():
+        raise ctx.error(node, f"image '{filename}' not found (looked in {', '.join(map(str, ctx.resolver))})")
+    try:
+        image = read_exr_rgb(file)
+    except ImageError as e:
+        raise ctx.error(node, str(e)) from None
+    return EnvironmentMap(image * np.float32(scale), to_world, node.attrib.get("id", f"envmap@{node.line}"))
 
 
 @dataclass(frozen=True)
