@@ -19,15 +19,13 @@ from xml.parsers import expat
 import numpy as np
 
 from . import spectra, transform
-from .bitmap import BitmapError, read_bitmap
 from .film import ReconstructionFilter
-from .ior import named_conductor, named_ior
 from .lights import PLUGINS as LIGHT_PLUGINS
-from .materials import BSDF, Bitmap, Checkerboard
+from .materials import BSDF, Bitmap, Checkerboard, textures
+from .materials import PLUGINS as BSDF_PLUGINS
 from .scene import Camera, Scene, SceneError
 from .shapes import PLUGINS as SHAPE_PLUGINS
 from .shapes.base import ShapeArgs
-from .spectra import rgb
 
 SUPPORTED = {
     "integrator": ("path",),
@@ -36,9 +34,9 @@ SUPPORTED = {
     "rfilter": ("box", "gaussian", "tent"),
     "sampler": ("independent",),
     "shape": tuple(SHAPE_PLUGINS),
-    "bsdf": ("diffuse", "twosided", "conductor", "dielectric", "plastic"),
+    "bsdf": tuple(BSDF_PLUGINS),
     "emitter": ("area", *LIGHT_PLUGINS),
-    "texture": ("checkerboard", "bitmap"),
+    "texture": tuple(textures.PLUGINS),
 }
 PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf", "emitter", "texture",
                "medium", "phase", "volume", "spectrum")
@@ -63,14 +61,8 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("rfilter", "tent"): ("radius",),
     ("sampler", "independent"): ("sample_count", "seed"),
     **{("shape", name): module.PLUGINS[name] for name, module in SHAPE_PLUGINS.items()},
-    ("bsdf", "diffuse"): ("reflectance",),
-    ("bsdf", "twosided"): ("allow_transmission",),
-    ("bsdf", "conductor"): ("material", "eta", "k", "specular_reflectance"),
-    ("bsdf", "dielectric"): ("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"),
-    ("bsdf", "plastic"): ("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "nonlinear"),
-    ("texture", "checkerboard"): ("color0", "color1", "to_uv"),
-    ("texture", "bitmap"): ("filename", "bitmap", "data", "raw", "filter_type", "wrap_mode", "to_uv", "format",
-                            "accel"),
+    **{("bsdf", name): module.PLUGINS[name] for name, module in BSDF_PLUGINS.items()},
+    **{("texture", name): params for name, params in textures.PLUGINS.items()},
     ("emitter", "area"): ("radiance", "sampling_weight"),
     **{("emitter", name): module.PLUGINS[name] for name, module in LIGHT_PLUGINS.items()},
 }
@@ -143,6 +135,10 @@ class _Context:
         except SceneError as e:
             self.errors.append(str(e))
             return default
+
+    def bsdf(self, node: Node) -> BSDF:
+        """The BSDF of a <bsdf> element (nested in another, or given by <ref>), built once."""
+        return self.built_once(node, lambda n: _bsdf(self, n))
 
     def built_once(self, node: Node, build):
         """An object declared once and used by several others is built (and refused) once."""
@@ -685,121 +681,11 @@ def _rfilter(ctx: _Context, node: Node) -> ReconstructionFilter:
 
 def _bsdf(ctx: _Context, node: Node) -> BSDF:
     kind = _check_type(ctx, node)
-    props = _Props(ctx, node, kind)
-    if kind == "twosided":
-        inner = props.children("bsdf")
-        if props.get("allow_transmission", False, ("boolean",)):
-            raise ctx.error(props.values["allow_transmission"], "allow_transmission = true is not supported")
-        props.finish()
-        if len(inner) not in (1, 2):
-            raise ctx.error(node, "twosided wraps one bsdf (or two)")
-        bases = [ctx.built_once(b, lambda n: _bsdf(ctx, n)) for b in inner]
-        if any(b.kind != "diffuse" or b.twosided for b in bases):
-            raise ctx.error(node, "twosided supports one-sided diffuse bsdfs only")
-        if len(bases) == 2 and bases[0] != bases[1]:
-            raise ctx.error(node, "twosided with different front and back bsdfs is unsupported")
-        return BSDF("diffuse", bases[0].reflectance, twosided=True)
-    if kind == "diffuse":
-        rho = props.colour("reflectance", 0.5, textured=True)
-        props.finish()
-        if not isinstance(rho, np.ndarray):
-            return BSDF("diffuse", (0.0, 0.0, 0.0), texture=rho)
-        if np.any(rho < 0) or np.any(rho > 1):
-            raise ctx.error(node, f"diffuse reflectance must lie in [0, 1], got {tuple(float(x) for x in rho)}")
-        return BSDF("diffuse", tuple(float(x) for x in rho))
-    if kind == "conductor":
-        material = props.get("material", "none", ("string",))
-        if props.has("eta") or material == "none":
-            if material != "none":
-                raise ctx.error(node, "give either eta and k or a material, not both (as in Mitsuba)")
-            eta, k = props.colour("eta", 0.0, unbounded=True), props.colour("k", 1.0, unbounded=True)
-        else:
-            try:
-                eta, k = (np.array(v) for v in named_conductor(material))
-            except KeyError as e:
-                raise ctx.error(props.values["material"], e.args[0]) from None
-        spec = props.colour("specular_reflectance", 1.0)
-        props.finish()
-        if np.any(spec < 0) or np.any(spec > 1):
-            raise ctx.error(node, f"specular_reflectance must lie in [0, 1], got {tuple(float(x) for x in spec)}")
-        return BSDF("conductor", rgb(spec), eta=rgb(eta), k=rgb(k))
-    if kind == "plastic":
-        ior = {k: _ior(ctx, props, k, d) for k, d in (("int_ior", "polypropylene"), ("ext_ior", "air"))}
-        rho, spec = props.colour("diffuse_reflectance", 0.5, textured=True), props.colour("specular_reflectance", 1.0)
-        nonlinear = props.get("nonlinear", False, ("boolean",))
-        props.finish()
-        texture = None if isinstance(rho, np.ndarray) else rho
-        if texture is not None:     # its mean steers only which layer is sampled, not the estimate
-            rho = np.full(3, 0.5)
-        for name, value in (("diffuse_reflectance", rho), ("specular_reflectance", spec)):
-            if np.any(value < 0) or np.any(value > 1):
-                raise ctx.error(node, f"{name} must lie in [0, 1], got {rgb(value)}")
-        if min(ior.values()) <= 0:
-            raise ctx.error(node, "indices of refraction must be positive")
-        return BSDF("plastic", rgb(rho), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"], specular_reflectance=rgb(spec),
-                    nonlinear=bool(nonlinear), texture=texture)
-    ior = {k: _ior(ctx, props, k, d) for k, d in (("int_ior", "bk7"), ("ext_ior", "air"))}
-    for name in ("specular_reflectance", "specular_transmittance"):
-        if np.any(props.colour(name, 1.0) != 1.0):
-            raise ctx.error(props.values[name], f"{name} other than 1 is unsupported")
-    props.finish()
-    if min(ior.values()) <= 0:
-        raise ctx.error(node, "indices of refraction must be positive")
-    return BSDF("dielectric", (1.0, 1.0, 1.0), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"])
+    return BSDF_PLUGINS[kind].from_xml(ctx, _Props(ctx, node, kind), node)
 
 
 def _texture(ctx: _Context, node: Node) -> Checkerboard | Bitmap:
-    kind = _check_type(ctx, node)
-    props = _Props(ctx, node, kind)
-    if kind == "bitmap":
-        return _bitmap(ctx, node, props)
-    colours = [props.colour(name, d) for name, d in (("color0", 0.4), ("color1", 0.2))]
-    m = props.get("to_uv", np.eye(4), ("transform",))
-    props.finish()
-    for name, c in zip(("color0", "color1"), colours):
-        if np.any(c < 0) or np.any(c > 1):
-            raise ctx.error(node, f"{name} must lie in [0, 1], got {rgb(c)}")
-    return Checkerboard(rgb(colours[0]), rgb(colours[1]), _to_uv(m))
-
-
-def _to_uv(m: np.ndarray) -> tuple[tuple[float, float, float], ...]:
-    """A 4x4 transform acts on (u, v) through its x, y rows and columns and its translation (Mitsuba's
-    conversion of a 4x4 to a 3x3 transform)."""
-    return tuple(tuple(float(x) for x in row) for row in m[np.ix_([0, 1, 3], [0, 1, 3])])
-
-
-def _bitmap(ctx: _Context, node: Node, props: _Props) -> Bitmap:
-    filename = props.get("filename", None, ("string",))
-    raw = props.get("raw", False, ("boolean",))
-    choices = {"filter_type": ("bilinear", "nearest"), "wrap_mode": ("repeat", "clamp"), "format": ("auto",)}
-    modes = {}
-    for name, accepted in choices.items():
-        modes[name] = props.get(name, accepted[0], ("string",)).lower()
-        if modes[name] not in accepted:
-            raise ctx.error(props.values[name], f"{name} '{modes[name]}' unsupported; supported: {', '.join(accepted)}")
-    m = props.get("to_uv", np.eye(4), ("transform",))
-    props.ignore("accel")                  # how lookups are accelerated, not their values
-    props.finish()
-    if filename is None:
-        raise ctx.error(node, "bitmap needs a <string name=\"filename\">")
-    file = ctx.resolve(filename)
-    if not file.is_file():
-        raise ctx.error(node, f"image '{filename}' not found (looked in {', '.join(map(str, ctx.resolver))})")
-    try:
-        image = read_bitmap(file, raw)
-    except BitmapError as e:
-        raise ctx.error(node, str(e)) from None
-    return Bitmap(image, _to_uv(m), modes["filter_type"] == "bilinear", modes["wrap_mode"] == "repeat")
-
-
-def _ior(ctx: _Context, props: _Props, name: str, default: str) -> float:
-    value = props.get(name, default, ("float", "integer", "string"))
-    if isinstance(value, str):
-        try:
-            return named_ior(value)
-        except KeyError as e:
-            raise ctx.error(props.values.get(name, props.node), e.args[0]) from None
-    return float(value)
+    return textures.from_xml(ctx, _Props(ctx, node, _check_type(ctx, node)), node)
 
 
 def _area_light(ctx: _Context, node: Node) -> tuple[float, float, float]:
@@ -825,7 +711,7 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
     if len(emitters) > 1 or len(bsdfs) > 1:
         raise ctx.error(node, "a shape holds at most one bsdf and one emitter")
     radiance = ctx.attempt(ctx.built_once, emitters[0], lambda n: _area_light(ctx, n)) if emitters else None
-    bsdf = ctx.attempt(ctx.built_once, bsdfs[0], lambda n: _bsdf(ctx, n)) if bsdfs else None
+    bsdf = ctx.attempt(ctx.bsdf, bsdfs[0]) if bsdfs else None
     if bsdf is None:  # Mitsuba's default: diffuse 0.5, but black on an emitter shape
         bsdf = BSDF("diffuse", (0.0,) * 3 if emitters else (0.5,) * 3)
     to_world = props.get("to_world", np.eye(4), ("transform",))

@@ -10,7 +10,7 @@ from .sample import DIRECTIONAL_LIGHT, POINT_LIGHT, LightSample, select_sample
 
 # XML plugin name -> its module (PLUGINS: the parameters Mitsuba reads; ENVIRONMENT: at most one per scene;
 # from_xml: the light); area emitters are read with their shapes
-PLUGINS = {name: module for module in (point, directional, constant, envmap) for name in module.PLUGINS}
+PLUGINS = {name: module for module in (constant, envmap, point, directional) for name in module.PLUGINS}
 
 __all__ = ["DIRECTIONAL_LIGHT", "PLUGINS", "POINT_LIGHT", "ConstantEnvironment", "DirectionalLight", "EnvironmentMap", "LightSample", "PointLight",
            "select_sample"]

@@ -6,9 +6,29 @@ import drjit as dr
 import numpy as np
 
 from ..jit import Array3f, Bool, Float, UInt32
+from ..spectra import rgb
+from .bsdf import BSDF
+from .reading import check_unit_interval, read_ior
 from .fresnel import fresnel_diffuse_reflectance
 
+PLUGINS = {"plastic": ("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "nonlinear")}
 FIELDS = 8
+
+
+def from_xml(ctx, props, node) -> BSDF:
+    ior = {k: read_ior(ctx, props, k, d) for k, d in (("int_ior", "polypropylene"), ("ext_ior", "air"))}
+    rho, spec = props.colour("diffuse_reflectance", 0.5, textured=True), props.colour("specular_reflectance", 1.0)
+    nonlinear = props.get("nonlinear", False, ("boolean",))
+    props.finish()
+    texture = None if isinstance(rho, np.ndarray) else rho
+    if texture is not None:     # its mean steers only which layer is sampled, not the estimate
+        rho = np.full(3, 0.5)
+    for name, value in (("diffuse_reflectance", rho), ("specular_reflectance", spec)):
+        check_unit_interval(ctx, node, name, value)
+    if min(ior.values()) <= 0:
+        raise ctx.error(node, "indices of refraction must be positive")
+    return BSDF("plastic", rgb(rho), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"], specular_reflectance=rgb(spec),
+                nonlinear=bool(nonlinear), texture=texture)
 
 
 def table(materials: list) -> Float:

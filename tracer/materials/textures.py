@@ -7,8 +7,13 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
+from ..bitmap import BitmapError, read_bitmap
 from ..jit import Array3f, Bool, Float, UInt32
+from ..spectra import rgb
+from .reading import check_unit_interval
 
+PLUGINS = {"checkerboard": ("color0", "color1", "to_uv"),
+           "bitmap": ("filename", "bitmap", "data", "raw", "filter_type", "wrap_mode", "to_uv", "format", "accel")}
 FIELDS = 18         # per material: kind, two colours, to_uv's two rows, a bitmap's offset, size and modes
 IDENTITY_UV = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
@@ -31,6 +36,47 @@ class Bitmap:
     to_uv: tuple[tuple[float, float, float], ...] = IDENTITY_UV
     bilinear: bool = True
     repeat: bool = True                    # else clamp
+
+
+def from_xml(ctx, props, node) -> Checkerboard | Bitmap:
+    if node.attrib.get("type") == "bitmap":
+        return _bitmap(ctx, node, props)
+    colours = [props.colour(name, d) for name, d in (("color0", 0.4), ("color1", 0.2))]
+    m = props.get("to_uv", np.eye(4), ("transform",))
+    props.finish()
+    for name, c in zip(("color0", "color1"), colours):
+        check_unit_interval(ctx, node, name, c)
+    return Checkerboard(rgb(colours[0]), rgb(colours[1]), _to_uv(m))
+
+
+def _to_uv(m: np.ndarray) -> tuple[tuple[float, float, float], ...]:
+    """A 4x4 transform acts on (u, v) through its x, y rows and columns and its translation (Mitsuba's
+    conversion of a 4x4 to a 3x3 transform)."""
+    return tuple(tuple(float(x) for x in row) for row in m[np.ix_([0, 1, 3], [0, 1, 3])])
+
+
+def _bitmap(ctx, node, props) -> Bitmap:
+    filename = props.get("filename", None, ("string",))
+    raw = props.get("raw", False, ("boolean",))
+    choices = {"filter_type": ("bilinear", "nearest"), "wrap_mode": ("repeat", "clamp"), "format": ("auto",)}
+    modes = {}
+    for name, accepted in choices.items():
+        modes[name] = props.get(name, accepted[0], ("string",)).lower()
+        if modes[name] not in accepted:
+            raise ctx.error(props.values[name], f"{name} '{modes[name]}' unsupported; supported: {', '.join(accepted)}")
+    m = props.get("to_uv", np.eye(4), ("transform",))
+    props.ignore("accel")                  # how lookups are accelerated, not their values
+    props.finish()
+    if filename is None:
+        raise ctx.error(node, "bitmap needs a <string name=\"filename\">")
+    file = ctx.resolve(filename)
+    if not file.is_file():
+        raise ctx.error(node, f"image '{filename}' not found (looked in {', '.join(map(str, ctx.resolver))})")
+    try:
+        image = read_bitmap(file, raw)
+    except BitmapError as e:
+        raise ctx.error(node, str(e)) from None
+    return Bitmap(image, _to_uv(m), modes["filter_type"] == "bilinear", modes["wrap_mode"] == "repeat")
 
 
 class TextureTables:
