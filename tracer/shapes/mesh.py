@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import drjit as dr
@@ -117,12 +118,27 @@ class MeshSet(ShapeSet):
             yield m, lo, len(m.faces)
             lo += len(m.faces)
 
-    def face_normals(self) -> np.ndarray:
+    @cached_property
+    def _face_normals(self) -> np.ndarray:
         v = self.tri_vertices
         n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
         return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
+    def face_normals(self) -> np.ndarray:
+        """(triangles, 3) unit geometric normals (right-handed in the corners' order)."""
+        return self._face_normals
+
     normals = face_normals
+
+    @cached_property
+    def _corners(self) -> np.ndarray:
+        """The vertices the triangles use, each once (the triangles' hull for shadow-ray culling)."""
+        used = []
+        for m in self.shapes:
+            mask = np.zeros(len(m.vertices), bool)
+            mask[m.faces] = True
+            used.append(m.vertices[mask])
+        return np.concatenate(used) if used else np.zeros((0, 3))
 
     def _corner_normals(self) -> np.ndarray:
         """(triangles, 3, 3) shading normals at each triangle's corners (its face normal on flat meshes)."""
@@ -150,7 +166,7 @@ class MeshSet(ShapeSet):
         return [(self.base + j, v[0], n) for j, (v, n) in enumerate(zip(self.tri_vertices, self.face_normals()))]
 
     def sides(self, p0: np.ndarray, n: np.ndarray) -> np.ndarray:
-        return (self.tri_vertices.reshape(-1, 3) - p0) @ n
+        return (self._corners - p0) @ n
 
     def describe(self) -> str:
         return f"{self.count} triangles (Moeller-Trumbore, {'in a BVH' if self.bvh is not None else 'brute force'})"
