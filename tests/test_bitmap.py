@@ -9,6 +9,7 @@ import pytest
 import tracer
 from tracer import bitmap
 from tracer.geometry import SceneGeometry
+from tracer.materials import textures
 from tracer.jit import Float
 from validation.stats import compare_passes
 
@@ -65,8 +66,7 @@ def test_fails_when_filtered_before_decoding(monkeypatch):
         blur = (encoded + np.roll(encoded, 1, 0) + np.roll(encoded, 1, 1) + np.roll(encoded, (1, 1), (0, 1))) / 4
         return (blur if raw else bitmap.srgb_to_linear(blur)).astype(np.float32)
 
-    import tracer.mitsuba_xml as loader
-    monkeypatch.setattr(loader, "read_bitmap", blurred)
+    monkeypatch.setattr(textures, "read_bitmap", blurred)
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=2)
     result = compare_passes(tracer_passes(2), ref, ALPHA)
     assert result.verdict == "disagree", result.summary()

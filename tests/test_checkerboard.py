@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import tracer
-from tracer.geometry import SceneGeometry
+from tracer.materials.textures import TextureTables
 from validation.stats import compare_passes
 
 from .conftest import PASSES, SCENES, SIZE, SPP, mitsuba_passes, plugin_passes
@@ -32,8 +32,9 @@ def test_checkerboard_agrees_with_mitsuba(max_depth):
 
 @pytest.mark.slow
 def test_fails_with_u_and_v_swapped(monkeypatch):
-    uv = SceneGeometry._uv
-    monkeypatch.setattr(SceneGeometry, "_uv", lambda self, hit, prim, valid: uv(self, hit, prim, valid)[::-1])
+    lookup = TextureTables.reflectance
+    monkeypatch.setattr(TextureTables, "reflectance",
+                        lambda self, material, uv, rho, active: lookup(self, material, uv[::-1], rho, active))
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=2)
     result = compare_passes(tracer_passes(2), ref, ALPHA)
     assert result.verdict == "disagree", result.summary()
