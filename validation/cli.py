@@ -5,7 +5,8 @@ exit codes for CI (0 all agree, 1 any disagrees, 3 any inconclusive and none dis
 `validate report SCENE.xml [--quick] [--size N]`: run (or resume) the sweeps and write the report;
 `validate reference SCENE.xml --max-depth D --size N`: render or load one cached Mitsuba reference;
 `validate faults`: the table of injected faults the statistical test catches;
-`validate improvements SCENE.xml`: filters, adaptive sampling and denoising, each measured."""
+`validate improvements SCENE.xml`: filters, adaptive sampling and denoising, each measured;
+`validate snapshot DIR [--against OLD]`: a refactor's images, bit-identical or not."""
 from __future__ import annotations
 
 import argparse
@@ -54,6 +55,10 @@ def _parser() -> argparse.ArgumentParser:
                    "performance.json; the report says which run each section comes from")
     q = sub.add_parser("faults", help="write reports/faults.md: which injected faults the test catches at which spp")
     q.add_argument("--output", "-o", type=Path, default=Path("reports/faults.md"))
+    n = sub.add_parser("snapshot", help="render every project scene small with one Dr.Jit thread into DIR (.npy); "
+                       "with --against, exit 1 unless each image equals the earlier snapshot's to the bit")
+    n.add_argument("folder", type=Path, metavar="DIR")
+    n.add_argument("--against", type=Path, metavar="OLD", help="an earlier snapshot's folder")
     m = sub.add_parser("improvements", help="write reports/<scene>/improvements.md: filters, adaptive sampling, "
                        "denoising, each judged by its error against render time")
     m.add_argument("scene", type=Path)
@@ -211,6 +216,24 @@ def _reference(args) -> None:
           f"{ref.mean.mean():.4f}, rendered in {ref.seconds:.1f} s (key {ref.key})")
 
 
+def _snapshot(args) -> int:
+    from .scenefile import ScenePlanError
+    from .snapshot import compare, write
+
+    if args.against is not None and not any(args.against.glob("*.npy")):
+        raise ScenePlanError(f"'{args.against}' holds no snapshot (.npy images)")
+    names = write(args.folder)
+    print(f"{len(names)} images in {args.folder}")
+    if args.against is None:
+        return 0
+    differences = compare(args.folder, args.against)
+    for line in differences:
+        print(line)
+    print(f"{len(names) - len(differences)} of {len(names)} bit-identical to {args.against}" if differences
+          else f"all {len(names)} bit-identical to {args.against}")
+    return 1 if differences else 0
+
+
 COMMANDS = {"report": "_report", "reference": "_reference", "improvements": "_improvements"}
 
 
@@ -241,6 +264,8 @@ def _run(args) -> int:
 
         print(run(args.output, args.only))
         return 0
+    if args.command == "snapshot":
+        return _snapshot(args)
     if args.command == "faults":
         from .power import table
 
