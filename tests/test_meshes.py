@@ -1,11 +1,11 @@
 """OBJ reading: the bulk parser gives exactly the statement-by-statement reader's mesh, and both key vertices
-by (position, texture coordinate, normal) as Mitsuba does."""
+by (position, texture coordinate, normal) as Mitsuba does; vertex normals are those of a plain formulation."""
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tracer.meshes import _parse_bulk, _parse_statements
+from tracer.meshes import _parse_bulk, _parse_statements, vertex_normals
 from validation.mesh_scene import torus
 
 from .test_mesh_formats import assert_same, mitsuba_mesh, ours
@@ -119,3 +119,26 @@ def test_vertices_are_keyed_by_texture_coordinates_too_as_in_mitsuba(tmp_path, m
     mesh = ours(tmp_path, '<shape type="obj"><string name="filename" value="m.obj"/></shape>')
     assert len(mesh.vertices) == 7
     assert_same(mesh, mitsuba_mesh(mi, {"type": "obj", "filename": str(tmp_path / "m.obj")}))
+
+
+def test_vertex_normals_are_the_plain_formulation():
+    """Bit for bit the angle-weighted sum written per face with numpy.add.at, on a mesh with degenerate
+    triangles and unused vertices."""
+    rng = np.random.default_rng(5)
+    vertices = rng.normal(size=(300, 3))
+    faces = rng.integers(0, 290, size=(1000, 3))
+    faces[:10, 1] = faces[:10, 0]                     # degenerate
+    v = vertices[faces]
+    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+    out = np.zeros_like(vertices)
+    for i in range(3):
+        d0 = v[:, (i + 1) % 3] - v[:, i]
+        d1 = v[:, (i + 2) % 3] - v[:, i]
+        d0 /= np.maximum(np.linalg.norm(d0, axis=1, keepdims=True), 1e-30)
+        d1 /= np.maximum(np.linalg.norm(d1, axis=1, keepdims=True), 1e-30)
+        np.add.at(out, faces[:, i], n * np.arccos(np.clip(np.sum(d0 * d1, axis=1), -1, 1))[:, None])
+    length = np.linalg.norm(out, axis=1, keepdims=True)
+    expected = np.divide(out, length, out=np.zeros_like(out), where=length > 0)
+    assert np.array_equal(vertex_normals(vertices, faces), expected)

@@ -260,21 +260,37 @@ def _fan(vertex: np.ndarray, per_face: np.ndarray) -> np.ndarray:
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Angle-weighted average of the adjacent face normals (Mitsuba's recompute_vertex_normals)."""
-    v = vertices[faces]
-    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    length = np.linalg.norm(n, axis=1, keepdims=True)
+    """Angle-weighted average of the adjacent face normals (Mitsuba's recompute_vertex_normals).
+
+    Computed on coordinate rows (x, y, z of every triangle corner), the sums in the order of the faces and
+    then of their corners."""
+    corner = [vertices.T[:, faces[:, i]] for i in range(3)]
+    edge = [corner[(i + 1) % 3] - corner[i] for i in range(3)]           # c0 -> c1, c1 -> c2, c2 -> c0
+    n = _cross(edge[0], -edge[2])
+    length = _length(n)
     n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
-    out = np.zeros_like(vertices)
-    for i in range(3):
-        d0 = v[:, (i + 1) % 3] - v[:, i]
-        d1 = v[:, (i + 2) % 3] - v[:, i]
-        d0 /= np.maximum(np.linalg.norm(d0, axis=1, keepdims=True), 1e-30)
-        d1 /= np.maximum(np.linalg.norm(d1, axis=1, keepdims=True), 1e-30)
-        angle = np.arccos(np.clip(np.sum(d0 * d1, axis=1), -1, 1))
-        np.add.at(out, faces[:, i], n * angle[:, None])
-    length = np.linalg.norm(out, axis=1, keepdims=True)
-    return np.divide(out, length, out=np.zeros_like(out), where=length > 0)
+    unit = [e / np.maximum(_length(e), 1e-30) for e in edge]
+    # the angle at corner i, between its edges to c(i+1) and to c(i+2) (the latter is -edge[i - 1])
+    weighted = [n * np.arccos(np.clip(-_dot(unit[i], unit[i - 1]), -1, 1)) for i in range(3)]
+    index, weighted = faces.T.ravel(), np.concatenate(weighted, axis=1)
+    out = np.stack([np.bincount(index, weighted[k], minlength=len(vertices)) for k in range(3)])
+    length = _length(out)
+    return np.ascontiguousarray(np.divide(out, length, out=np.zeros_like(out), where=length > 0).T)
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Dot products of coordinate rows (3, n)."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross products of coordinate rows (3, n)."""
+    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def _length(a: np.ndarray) -> np.ndarray:
+    """Euclidean lengths (1, n) of coordinate rows (3, n)."""
+    return np.sqrt(_dot(a, a))[None]
 
 
 def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
