@@ -308,7 +308,10 @@ def _read_ply(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndar
     from plyfile import PlyData, PlyParseError
 
     try:
-        ply = PlyData.read(str(path))
+        try:   # binary triangles in bulk (plyfile checks that every face has 3 corners)
+            ply = PlyData.read(str(path), known_list_len={"face": {"vertex_indices": 3, "vertex_index": 3}})
+        except PlyParseError:   # polygons, refused below, or a broken file, which this reports
+            ply = PlyData.read(str(path))
         vertex, face = ply["vertex"], ply["face"]
         names = vertex.data.dtype.names
         vertices = np.stack([np.asarray(vertex[k], float) for k in "xyz"], axis=1)
@@ -319,9 +322,11 @@ def _read_ply(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndar
     except (PlyParseError, KeyError, ValueError) as e:
         raise MeshError(f"{path}: not a readable PLY mesh with vertex x, y, z and face vertex_indices ({e})") \
             from None
-    if any(len(r) != 3 for r in rows):
-        raise MeshError(f"{path}: only triangular faces are supported (as in Mitsuba)")
-    faces = np.asarray(np.stack(rows) if len(rows) else np.zeros((0, 3)), np.int64).reshape(-1, 3)
+    if rows.dtype == object:    # a list per face (ASCII files, polygons)
+        if any(len(r) != 3 for r in rows):
+            raise MeshError(f"{path}: only triangular faces are supported (as in Mitsuba)")
+        rows = np.stack(rows) if len(rows) else np.zeros((0, 3))
+    faces = np.array(rows, np.int64).reshape(-1, 3)
     if not len(faces):
         raise MeshError(f"{path}: the mesh has no faces")
     if faces.min() < 0 or faces.max() >= len(vertices):
