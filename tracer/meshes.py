@@ -262,8 +262,8 @@ def _fan(vertex: np.ndarray, per_face: np.ndarray) -> np.ndarray:
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Angle-weighted average of the adjacent face normals (Mitsuba's recompute_vertex_normals).
 
-    Computed on coordinate rows (x, y, z of every triangle corner), the sums in the order of the faces and
-    then of their corners."""
+    Computed on coordinate rows (x, y, z of every triangle corner); a vertex's sum runs over the faces' first
+    corners in face order, then their second, then their third."""
     corner = [vertices.T[:, faces[:, i]] for i in range(3)]
     edge = [corner[(i + 1) % 3] - corner[i] for i in range(3)]           # c0 -> c1, c1 -> c2, c2 -> c0
     n = _cross(edge[0], -edge[2])
