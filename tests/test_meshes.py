@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tracer.meshes import _parse_bulk, _parse_statements, vertex_normals
+from tracer.meshes import MeshError, _parse_bulk, _parse_statements, vertex_normals
 from validation.mesh_scene import torus
 
 from .test_mesh_formats import assert_same, mitsuba_mesh, ours
@@ -102,6 +102,30 @@ def test_anything_else_goes_statement_by_statement(change):
     text = change(_random_obj(0))
     assert text != _random_obj(0)
     assert _parse_bulk(text) is None
+
+
+MUTATIONS = list("0123456789-+/ \t\nfvnt#.eE_x") + ["\r", "\x0c", "\x1f", "\u00e9", "nan", "//", "f ", "v ", "vn ",
+                                                   "vt ", "\n  ", "1e400", "-0"]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_mutated_files_parse_in_bulk_to_the_same_mesh_or_not_at_all(seed):
+    """Small generated files with one to three characters or words inserted, deleted or replaced: the bulk
+    parser gives the statement parser's mesh, or None (always None where the statement parser refuses)."""
+    rng = np.random.default_rng(seed)
+    for _ in range(100):
+        text = _random_obj(int(rng.integers(12)), n_vertices=8, n_faces=16)
+        for _ in range(int(rng.integers(1, 4))):
+            i, piece = int(rng.integers(len(text))), str(rng.choice(MUTATIONS))
+            inserted, deleted, replaced = text[:i] + piece + text[i:], text[:i] + text[i + 1:], text[:i] + piece + text[i + 1:]
+            text = [inserted, deleted, replaced][rng.integers(3)]
+        try:
+            lines = _parse_statements(text, Path("x.obj"))
+        except MeshError:
+            lines = None
+        bulk = _parse_bulk(text)
+        if bulk is not None:
+            assert_same_mesh(bulk, lines)
 
 
 @pytest.mark.parametrize("mesh", sorted(SCENES.glob("*/*.obj")), ids=lambda p: p.name)

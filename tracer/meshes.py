@@ -184,8 +184,6 @@ def _face_corners(lines: bytes) -> tuple[np.ndarray, ...] | None:
     if b"/" in lines:
         slash = faces == 47
         last = np.flatnonzero(~space[:-1] & space[1:])        # each corner's last byte
-        if slash[first].any() or slash[last].any():
-            return None
         slashes, doubled = (_per_corner(m, first, last) for m in (slash, np.append(slash[1:] & slash[:-1], False)))
         if (slashes > 2).any():
             return None
@@ -197,7 +195,7 @@ def _face_corners(lines: bytes) -> tuple[np.ndarray, ...] | None:
             return None
     fields = slashes + 1 - doubled                             # p | p t | p t n | p n
     numbers = np.fromstring(lines, np.int64, sep=" ")
-    if len(numbers) != fields.sum() or (numbers == _ABSENT).any():
+    if len(numbers) != fields.sum() or (numbers == _ABSENT).any():   # fewer: an empty field ("/1", "1/")
         return None
     at = np.cumsum(fields) - fields
     p, t, n = numbers[at], None, None
