@@ -200,6 +200,17 @@ def test_help_and_version_do_not_import_drjit():
     assert run.stdout.rstrip().endswith("drjit imported: False")
 
 
+@pytest.mark.parametrize("given, used", [(None, "1"), ("3", "3")])
+def test_the_command_line_runs_numpy_with_one_blas_thread_unless_told(given, used):
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    env |= {"PYTHONPATH": str(ROOT)} | ({"OPENBLAS_NUM_THREADS": given} if given else {})
+    code = ("import os, sys\nfrom tracer import cli\ntry:\n    cli.main(['--version'])\nexcept SystemExit:\n    pass\n"
+            "print('numpy' in sys.modules, os.environ['OPENBLAS_NUM_THREADS'])")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env, cwd=ROOT)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.split()[-2:] == ["False", used]      # set before NumPy (and its OpenBLAS) is loaded
+
+
 RENDER = "from tracer import cli; raise SystemExit(cli.main(['render', {!r}, '--size', '4x4', '-o', {!r}]))"
 
 

@@ -91,6 +91,7 @@ def test_serialized_as_mitsuba(tmp_path, version, index, mi):
 
 @pytest.mark.parametrize("make, words", [
     (lambda p: write_ply(p / "m.ply", True, faces=np.array([[0, 1, 2, 3]])), "triangular"),
+    (lambda p: write_ply(p / "m.ply", False, faces=np.array([[0, 1, 2, 3]])), "triangular"),
     (lambda p: (p / "m.ply").write_text("ply\nformat ascii 1.0\nbogus\n"), "PLY"),
 ])
 def test_bad_ply_is_located(tmp_path, make, words):

@@ -1,7 +1,8 @@
 """Reading triangle meshes (Wavefront OBJ, Stanford PLY) and computing Mitsuba's smooth vertex normals."""
 from __future__ import annotations
 
-from functools import lru_cache
+import io
+from functools import lru_cache, partial
 from pathlib import Path
 
 import numpy as np
@@ -12,10 +13,12 @@ class MeshError(ValueError):
 
 
 def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Vertices, triangles and per-vertex normals (None when the file has none), as read-only arrays.
+    """Vertices, triangles and per-vertex unit normals (None unless every corner names one), as read-only
+    arrays.
 
-    Vertices are keyed by their (position, normal) index pair as Mitsuba does; polygons are fanned. A file
-    that several shapes share is read once (until it changes).
+    Vertices are keyed by their (position, texture coordinate, normal) index triple, numbered in order of
+    first use, as Mitsuba does; polygons are fanned. A file that several shapes share is read once (until it
+    changes).
     """
     try:
         stat = path.stat()
@@ -29,11 +32,16 @@ def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
 @lru_cache(maxsize=16)
 def _read_obj(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     text = path.read_text()
-    vertices, faces, vn = _parse_plain(text) or _parse_statements(text, path)
+    vertices, faces, vn = _parse_bulk(text) or _parse_statements(text, path)
     if not len(faces):
         raise MeshError(f"{path}: the mesh has no faces")
     if not np.all(np.isfinite(vertices)):
         raise MeshError(f"{path}: a vertex position is NaN or infinite")
+    if vn is not None:
+        length = np.linalg.norm(vn, axis=1, keepdims=True)
+        if not np.all(length > 0):    # Mitsuba refuses these too
+            raise MeshError(f"{path}: a vertex normal (vn) has zero length")
+        vn /= length
     for a in (vertices, faces, vn):
         if a is not None:
             a.flags.writeable = False
@@ -41,74 +49,49 @@ def _read_obj(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndar
 
 
 def _parse_statements(text: str, path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Any OBJ, statement by statement."""
-    positions, normals = [], []
-    keys: dict[tuple[int, int], int] = {}
+    """Any OBJ, statement by statement: vertices, triangles and the normals (vn, as written) of the
+    vertices when every corner names one."""
+    positions, normals, n_tex = [], [], 0
+    keys: dict[tuple[int, int, int], int] = {}
     faces = []
     for lineno, line in enumerate(text.splitlines(), 1):
         parts = line.split()
         if not parts or parts[0].startswith("#"):
             continue
         try:
-            if parts[0] == "v":
-                positions.append([float(x) for x in parts[1:4]])
-            elif parts[0] == "vn":
-                normals.append([float(x) for x in parts[1:4]])
+            if parts[0] in ("v", "vn"):
+                if len(parts) < 4:
+                    raise ValueError(line)
+                (positions if parts[0] == "v" else normals).append([float(x) for x in parts[1:4]])
+            elif parts[0] == "vt":
+                n_tex += 1
             elif parts[0] == "f":
-                corners = [_corner(c, len(positions), len(normals)) for c in parts[1:]]
+                corners = [_corner(c, len(positions), n_tex, len(normals)) for c in parts[1:]]
                 ids = [keys.setdefault(c, len(keys)) for c in corners]
                 faces += [(ids[0], ids[i], ids[i + 1]) for i in range(1, len(ids) - 1)]
         except (ValueError, IndexError):
             raise MeshError(f"{path}:{lineno}: malformed OBJ line '{line.strip()}'") from None
-    order = sorted(keys, key=keys.get)
+    order = list(keys)        # in order of first use
     vertices = np.asarray(positions, float)[[k[0] for k in order]] if order else np.zeros((0, 3))
     vn = None
-    if normals and all(k[1] >= 0 for k in order):
-        vn = np.asarray(normals, float)[[k[1] for k in order]]
-        length = np.linalg.norm(vn, axis=1, keepdims=True)
-        if not np.all(length > 0):    # Mitsuba refuses these too
-            raise MeshError(f"{path}: a vertex normal (vn) has zero length")
-        vn /= length
+    if normals and all(k[2] >= 0 for k in order):
+        vn = np.asarray(normals, float)[[k[2] for k in order]]
     return vertices, np.asarray(faces, np.int64).reshape(-1, 3), vn
 
 
-def _parse_plain(text: str) -> tuple[np.ndarray, np.ndarray, None] | None:
-    """The common OBJ, parsed in bulk: only "v x y z" and "f i j k" statements (positive indices of earlier
-    vertices) besides comments and statements the reader ignores. None for anything else, which
-    _parse_statements then reads (and reports on) line by line; both give the same mesh."""
-    v_rows, f_rows, known = [], [], []
-    for line in text.splitlines():
-        head = line[:2]
-        if head == "v ":
-            v_rows.append(line[2:].split())
-        elif head == "f ":
-            f_rows.append(line[2:].split())
-            known.append(len(v_rows))          # the vertices a face may name
-        elif line.split()[:1] in (["v"], ["vn"], ["f"]):
-            return None
-    if not f_rows or any(len(r) != 3 for r in v_rows) or any(len(r) != 3 for r in f_rows):
-        return None
-    try:
-        positions, corners = np.array(v_rows, float), np.array(f_rows, np.int64)
-    except ValueError:                            # "1/2/3" corners, malformed numbers
-        return None
-    if (corners < 1).any() or (corners > np.array(known)[:, None]).any():
-        return None
-    used, first = np.unique(corners.ravel() - 1, return_index=True)
-    order = used[np.argsort(first)]               # vertices in order of first use, as Mitsuba keys them
-    index = np.empty(len(positions), np.int64)
-    index[order] = np.arange(len(order))
-    return positions[order], index[corners - 1], None
-
-
-def _corner(token: str, n_pos: int, n_norm: int) -> tuple[int, int]:
+def _corner(token: str, n_pos: int, n_tex: int, n_norm: int) -> tuple[int, int, int]:
+    """A face corner's (position, texture coordinate, normal) indices from 0, -1 where it names none."""
     fields = token.split("/")
+    if len(fields) > 3:
+        raise ValueError(token)
     p = _index(fields[0], n_pos)
+    t = _index(fields[1], n_tex) if len(fields) > 1 and fields[1] else -1
     n = _index(fields[2], n_norm) if len(fields) > 2 and fields[2] else -1
-    return p, n
+    return p, t, n
 
 
 def _index(s: str, count: int) -> int:
+    """An OBJ index (from 1, or negative: relative to the end) of one of `count` elements, from 0."""
     i = int(s)
     i = i - 1 if i > 0 else count + i
     if not 0 <= i < count:
@@ -116,22 +99,196 @@ def _index(s: str, count: int) -> int:
     return i
 
 
+# ---- the same, in bulk --------------------------------------------------------------------------------
+_ABSENT = np.iinfo(np.int64).min      # a corner's index that the corner does not name
+
+
+def _parse_bulk(text: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
+    """_parse_statements' mesh in bulk, with NumPy, for the OBJ files exporters write: "v", "vn" and "f"
+    statements at the start of their lines, ASCII text, face corners "p", "p/t", "p/t/n" or "p//n" of
+    plain integers (negative ones relative), any number of corners, anything else ignored as
+    _parse_statements ignores it. None for any other file, which _parse_statements then reads (and
+    reports on) line by line."""
+    if not text.isascii():
+        return None
+    data = np.frombuffer((text if text.endswith("\n") else text + "\n").encode("ascii"), np.uint8)
+    newline = data == 10
+    # control characters other than tab split lines or words in Python's str methods
+    if np.count_nonzero(data < 32) != np.count_nonzero(newline) + np.count_nonzero(data == 9):
+        return None
+    ends = np.flatnonzero(newline)
+    starts = np.concatenate(([0], ends[:-1] + 1))
+    length = ends - starts
+    c0, c1, c2 = (data[np.minimum(starts + k, len(data) - 1)] for k in range(3))
+    blank1, blank2 = (c1 == 32) | (c1 == 9), (c2 == 32) | (c2 == 9)
+    v = (c0 == ord("v")) & blank1 & (length > 1)
+    vn = (c0 == ord("v")) & (c1 == ord("n")) & blank2 & (length > 2)
+    vt = (c0 == ord("v")) & (c1 == ord("t")) & blank2 & (length > 2)
+    f = (c0 == ord("f")) & blank1 & (length > 1)
+    bare = ((c0 == ord("v")) | (c0 == ord("f"))) & (length == 1) | (c0 == ord("v")) & np.isin(c1, list(b"nt")) \
+        & (length == 2)                                      # a keyword alone
+    indented = ((c0 == 32) | (c0 == 9)) & (length > 0)
+    if bare.any() or not f.any() or any(text[s:e].lstrip()[:1] not in ("", "#")
+                                        for s, e in zip(starts[indented], ends[indented])):
+        return None
+    lines = partial(_lines, data, starts, ends)
+    try:
+        positions, normals = _coordinates(lines(v)), _coordinates(lines(vn))
+    except ValueError:
+        return None
+    corners = _face_corners(lines(f).tobytes())
+    if corners is None:
+        return None
+    per_face, *indices = corners
+    p, t, n = (_resolve(i, kind, f, per_face) for i, kind in zip(indices, (v, vt, vn)))
+    if not ((p >= 0).all() and (t >= -1).all() and (n >= -1).all()):
+        return None
+    vertex, first = _weld(p, t, n)
+    vertices = positions[p[first]]
+    vn_out = normals[n[first]] if len(normals) and (n[first] >= 0).all() else None
+    return vertices, _fan(vertex, per_face), vn_out
+
+
+def _lines(data: np.ndarray, starts: np.ndarray, ends: np.ndarray, marked: np.ndarray) -> np.ndarray:
+    """The bytes of the lines marked, newlines included (a view where they follow each other)."""
+    index = np.flatnonzero(marked)
+    if not len(index):
+        return data[:0]
+    if index[-1] - index[0] + 1 == len(index):
+        return data[starts[index[0]]:ends[index[-1]] + 1]
+    return data[np.repeat(marked, ends - starts + 1)]
+
+
+def _coordinates(lines: np.ndarray) -> np.ndarray:
+    """The first three numbers of each line (as Python's float reads them: NumPy's reader rounds as it does
+    and refuses the rest, "1_0" included); ValueError for a line it cannot read."""
+    if not len(lines):
+        return np.zeros((0, 3))
+    return np.loadtxt(io.BytesIO(lines.tobytes()), usecols=(1, 2, 3), comments=None, ndmin=2)
+
+
+def _face_corners(lines: bytes) -> tuple[np.ndarray, ...] | None:
+    """The face statements (whole lines) to the corners per face and each corner's OBJ indices p, t, n
+    (_ABSENT where it names none; None where no corner names one), or None unless every corner is "p",
+    "p/t", "p/t/n" or "p//n" of plain integers."""
+    if lines.translate(None, b"f0123456789-/ \t\n") or lines.count(b"f") != lines.count(b"\n"):
+        return None                                            # other bytes, or "f" past the keyword
+    lines = lines.replace(b"f", b" ")
+    faces = np.frombuffer(lines, np.uint8)
+    space = faces <= 32
+    first = np.flatnonzero(space[:-1] & ~space[1:]) + 1       # each corner's first byte
+    if not len(first):
+        return None
+    per_face = np.diff(np.searchsorted(first, np.flatnonzero(faces == 10)), prepend=0)
+    slashes = doubled = np.zeros(len(first), np.int64)
+    if b"/" in lines:
+        slash = faces == 47
+        last = np.flatnonzero(~space[:-1] & space[1:])        # each corner's last byte
+        slashes, doubled = (_per_corner(m, first, last) for m in (slash, np.append(slash[1:] & slash[:-1], False)))
+        if (slashes > 2).any():
+            return None
+        lines = lines.replace(b"/", b" ")
+    if b"-" in lines:                                          # only as a number's sign
+        minus = np.flatnonzero(faces == 45)
+        after, before = faces[minus + 1], faces[minus - 1]
+        if not (((after >= 48) & (after <= 57)).all() and ((before <= 32) | (before == 47)).all()):
+            return None
+    fields = slashes + 1 - doubled                             # p | p t | p t n | p n
+    numbers = np.fromstring(lines, np.int64, sep=" ")
+    if len(numbers) != fields.sum() or (numbers == _ABSENT).any():   # fewer: an empty field ("/1", "1/")
+        return None
+    at = np.cumsum(fields) - fields
+    p, t, n = numbers[at], None, None
+    with_t, with_n = (slashes >= 1) & (doubled == 0), slashes == 2
+    if with_t.any():
+        t = np.where(with_t, numbers[np.minimum(at + 1, len(numbers) - 1)], _ABSENT)
+    if with_n.any():
+        n = np.where(with_n, numbers[at + fields - 1], _ABSENT)
+    return per_face, p, t, n
+
+
+def _per_corner(mask: np.ndarray, first: np.ndarray, last: np.ndarray) -> np.ndarray:
+    """How many bytes of each corner (from its first to its last byte) the mask marks."""
+    if not mask.any():
+        return np.zeros(len(first), np.int64)
+    count = np.cumsum(mask, dtype=np.int64)
+    return count[last] - count[first] + mask[first]
+
+
+def _resolve(i: np.ndarray | None, kind: np.ndarray, faces: np.ndarray, per_face: np.ndarray) -> np.ndarray:
+    """Corners' OBJ indices (from 1, negative: relative to the end; None: none names one) of elements
+    defined on the lines marked `kind`, to indices from 0 (as _index); -1 where _ABSENT, -2 where out of
+    range of the elements defined before the corner's face line (`faces` marks those, `per_face` counts their
+    corners)."""
+    if i is None:
+        return np.full(per_face.sum(), -1)
+    before = np.cumsum(kind)[faces]
+    count = before[0] if before[0] == before[-1] else np.repeat(before, per_face)  # all defined first: one count
+    r = np.where(i > 0, i - 1, count + i)
+    return np.where(i == _ABSENT, -1, np.where((r >= 0) & (r < count), r, -2))
+
+
+def _weld(p: np.ndarray, t: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each corner's vertex, the vertices numbered in order of first use of their (p, t, n) index triple,
+    and the corner that first uses each vertex."""
+    corner = np.arange(len(p))
+    first = np.full(p.max() + 1, len(p))
+    np.minimum.at(first, p, corner)
+    first_use = first[p]
+    if not (np.array_equal(t[first_use], t) and np.array_equal(n[first_use], n)):
+        # a position with several (t, n): key by position and the (t, n) pair's rank
+        _, pair = np.unique((t + 1) * (n.max() + 2) + n + 1, return_inverse=True)
+        _, key = np.unique(p * (pair.max() + 1) + pair, return_inverse=True)
+        first = np.full(key.max() + 1, len(p))
+        np.minimum.at(first, key, corner)
+        first_use = first[key]
+    is_first = first_use == corner
+    return (np.cumsum(is_first) - 1)[first_use], np.flatnonzero(is_first)
+
+
+def _fan(vertex: np.ndarray, per_face: np.ndarray) -> np.ndarray:
+    """Triangles (c0, ci, ci+1) of each face's corners."""
+    if (per_face == 3).all():
+        return vertex.reshape(-1, 3)
+    fan = np.maximum(per_face - 2, 0)
+    face = np.repeat(np.arange(len(per_face)), fan)
+    base = (np.cumsum(per_face) - per_face)[face]
+    i = np.arange(len(face)) - np.repeat(np.cumsum(fan) - fan, fan) + 1
+    return vertex[np.stack([base, base + i, base + i + 1], axis=1)]
+
+
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Angle-weighted average of the adjacent face normals (Mitsuba's recompute_vertex_normals)."""
-    v = vertices[faces]
-    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    length = np.linalg.norm(n, axis=1, keepdims=True)
+    """Angle-weighted average of the adjacent face normals (Mitsuba's recompute_vertex_normals).
+
+    Computed on coordinate rows (x, y, z of every triangle corner); a vertex's sum runs over the faces' first
+    corners in face order, then their second, then their third."""
+    corner = [vertices.T[:, faces[:, i]] for i in range(3)]
+    edge = [corner[(i + 1) % 3] - corner[i] for i in range(3)]           # c0 -> c1, c1 -> c2, c2 -> c0
+    n = _cross(edge[0], -edge[2])
+    length = _length(n)
     n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
-    out = np.zeros_like(vertices)
-    for i in range(3):
-        d0 = v[:, (i + 1) % 3] - v[:, i]
-        d1 = v[:, (i + 2) % 3] - v[:, i]
-        d0 /= np.maximum(np.linalg.norm(d0, axis=1, keepdims=True), 1e-30)
-        d1 /= np.maximum(np.linalg.norm(d1, axis=1, keepdims=True), 1e-30)
-        angle = np.arccos(np.clip(np.sum(d0 * d1, axis=1), -1, 1))
-        np.add.at(out, faces[:, i], n * angle[:, None])
-    length = np.linalg.norm(out, axis=1, keepdims=True)
-    return np.divide(out, length, out=np.zeros_like(out), where=length > 0)
+    unit = [e / np.maximum(_length(e), 1e-30) for e in edge]
+    # the angle at corner i, between its edges to c(i+1) and to c(i+2) (the latter is -edge[i - 1])
+    weighted = [n * np.arccos(np.clip(-_dot(unit[i], unit[i - 1]), -1, 1)) for i in range(3)]
+    index, weighted = faces.T.ravel(), np.concatenate(weighted, axis=1)
+    out = np.stack([np.bincount(index, weighted[k], minlength=len(vertices)) for k in range(3)])
+    length = _length(out)
+    return np.ascontiguousarray(np.divide(out, length, out=np.zeros_like(out), where=length > 0).T)
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Dot products of coordinate rows (3, n)."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross products of coordinate rows (3, n)."""
+    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def _length(a: np.ndarray) -> np.ndarray:
+    """Euclidean lengths (1, n) of coordinate rows (3, n)."""
+    return np.sqrt(_dot(a, a))[None]
 
 
 def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -149,7 +306,10 @@ def _read_ply(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndar
     from plyfile import PlyData, PlyParseError
 
     try:
-        ply = PlyData.read(str(path))
+        try:   # binary triangles in bulk (plyfile checks that every face has 3 corners)
+            ply = PlyData.read(str(path), known_list_len={"face": {"vertex_indices": 3, "vertex_index": 3}})
+        except PlyParseError:   # polygons, refused below, or a broken file, which this reports
+            ply = PlyData.read(str(path))
         vertex, face = ply["vertex"], ply["face"]
         names = vertex.data.dtype.names
         vertices = np.stack([np.asarray(vertex[k], float) for k in "xyz"], axis=1)
@@ -160,9 +320,11 @@ def _read_ply(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndar
     except (PlyParseError, KeyError, ValueError) as e:
         raise MeshError(f"{path}: not a readable PLY mesh with vertex x, y, z and face vertex_indices ({e})") \
             from None
-    if any(len(r) != 3 for r in rows):
-        raise MeshError(f"{path}: only triangular faces are supported (as in Mitsuba)")
-    faces = np.asarray(np.stack(rows) if len(rows) else np.zeros((0, 3)), np.int64).reshape(-1, 3)
+    if rows.dtype == object:    # a list per face (ASCII files, polygons)
+        if any(len(r) != 3 for r in rows):
+            raise MeshError(f"{path}: only triangular faces are supported (as in Mitsuba)")
+        rows = np.stack(rows) if len(rows) else np.zeros((0, 3))
+    faces = np.array(rows, np.int64).reshape(-1, 3)
     if not len(faces):
         raise MeshError(f"{path}: the mesh has no faces")
     if faces.min() < 0 or faces.max() >= len(vertices):
