@@ -94,8 +94,11 @@ class SceneGeometry:
         self.prim_material = UInt32(material)
         self.prim_radiance = Float(radiance.ravel())
         self.prim_light_pdf = Float(light_pdf)
-        frames = np.concatenate([s.frames() for s in self.shape_sets if s.planar])
-        self.prim_frame = Float((frames if len(frames) else np.zeros((1, 3, 3))).ravel())
+        frames = np.zeros((max(self.curved_base, 1), 3, 3))
+        for shapes in self.shape_sets:
+            if shapes.planar:
+                frames[shapes.base:shapes.base + shapes.count] = shapes.frames()
+        self.prim_frame = Float(frames.ravel())
         if self.materials.textured:
             self.meshes.build_uvs()
 

@@ -94,6 +94,8 @@ def _child(job: dict) -> dict:
 def measure(job: dict, cold: bool = False) -> dict:
     """Runs `job` in a child process; adds the median seconds and the child's peak RSS in MB."""
     env = dict(os.environ)
+    if job.get("renderer") == "tracer":   # as the tracer command runs (tracer.cli.main)
+        env.setdefault("OPENBLAS_NUM_THREADS", "1")
     tmp = tempfile.TemporaryDirectory() if cold else None
     if tmp:
         env["HOME"] = tmp.name

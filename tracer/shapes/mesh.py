@@ -158,7 +158,9 @@ class MeshSet(ShapeSet):
 
     def frames(self) -> np.ndarray:
         tv = self.tri_vertices
-        return np.stack([tv[:, 0], tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0]], 1)
+        out = tv.copy()
+        out[:, 1:] -= tv[:, :1]
+        return out
 
     def culling_planes(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
         if self.bvh is not None:   # BVH triangles are all tested; only the unrolled ones are worth culling
