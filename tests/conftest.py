@@ -1,4 +1,5 @@
 import functools
+import os
 from pathlib import Path
 
 import numpy as np
@@ -6,6 +7,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "mitsuba_scenes"
+os.environ.setdefault("TRACER_BVH_CACHE", "off")   # tests keep nothing in the user's cache folder
 
 
 @functools.lru_cache(maxsize=None)

@@ -1,4 +1,6 @@
 """The BVH traversal finds exactly the hits of the brute-force tests it replaces."""
+import os
+
 import numpy as np
 import pytest
 
@@ -170,6 +172,55 @@ def test_build_splits_each_node_at_the_median_of_its_longest_axis(ties):
         assert len(a) == len(both) // 2 and a[:, axis].max() <= b[:, axis].min()
         lo, hi = tris[slots[node]].min(axis=(0, 1)), tris[slots[node]].max(axis=(0, 1))
         assert np.array_equal(tree.lo[node], lo) and np.array_equal(tree.hi[node], hi)   # exact boxes
+
+
+def test_the_disk_cache_folder(monkeypatch, tmp_path):
+    from tracer import bvh_cache
+
+    monkeypatch.delenv("TRACER_BVH_CACHE", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert bvh_cache.disk_folder() == tmp_path / "xdg" / "tracer" / "bvh"      # on by default
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert bvh_cache.disk_folder() == tmp_path / "home" / ".cache" / "tracer" / "bvh"
+    for off in ("off", "OFF", "0", ""):
+        monkeypatch.setenv("TRACER_BVH_CACHE", off)
+        assert bvh_cache.disk_folder() is None
+    monkeypatch.setenv("TRACER_BVH_CACHE", str(tmp_path / "mine"))
+    assert bvh_cache.disk_folder() == tmp_path / "mine"
+
+
+def test_only_large_meshes_go_to_disk_by_default(monkeypatch, tmp_path):
+    from tracer import bvh_cache
+
+    monkeypatch.setenv("TRACER_BVH_CACHE", str(tmp_path))
+    monkeypatch.setattr(bvh_cache, "DISK_MIN_TRIANGLES", 200)
+    rng = np.random.default_rng(3)
+    bvh_cache.clear_memory()
+    bvh_cache.cached_layout(rng.uniform(-1, 1, (199, 3, 3)))
+    assert not list(tmp_path.glob("*.npz"))
+    bvh_cache.cached_layout(rng.uniform(-1, 1, (200, 3, 3)))
+    assert len(list(tmp_path.glob("*.npz"))) == 1
+    bvh_cache.clear_memory()
+
+
+def test_the_least_recently_used_files_are_evicted(monkeypatch, tmp_path):
+    from tracer import bvh_cache
+
+    rng = np.random.default_rng(4)
+    meshes = [rng.uniform(-1, 1, (300, 3, 3)) for _ in range(3)]
+    bvh_cache.clear_memory()
+    for t, tris in enumerate(meshes):
+        bvh_cache.cached_layout(tris, tmp_path)
+        path = tmp_path / f"{bvh_cache.key(tris)}.npz"
+        os.utime(path, (1000 + t, 1000 + t))          # written in this order
+    bvh_cache.clear_memory()
+    bvh_cache.cached_layout(meshes[0], tmp_path)       # read back: now the most recently used
+    sizes = {p.name: p.stat().st_size for p in tmp_path.glob("*.npz")}
+    bvh_cache._evict(tmp_path, sum(sizes.values()) - 1)
+    kept = {p.name for p in tmp_path.glob("*.npz")}
+    assert kept == {f"{bvh_cache.key(m)}.npz" for m in (meshes[0], meshes[2])}   # the oldest unused one went
+    bvh_cache.clear_memory()
 
 
 def test_layout_cache_reuses_in_memory_and_on_disk(tmp_path):

@@ -1,5 +1,8 @@
 """Built BVHs kept for reuse, keyed by the triangles' content: in this process (the last few), and on disk
-in a folder when one is given (`TRACER_BVH_CACHE`, or the `folder` argument).
+for meshes of DISK_MIN_TRIANGLES or more, where reading one back takes a tenth of building it (measured:
+0.05 against 0.63 s at 249,354 triangles, 0.17 against 2.75 s at 997,534). The folder is
+`$TRACER_BVH_CACHE` if set (`off` keeps nothing on disk), else `$XDG_CACHE_HOME/tracer/bvh` (by default
+`~/.cache/tracer/bvh`); beyond CAPACITY bytes the files least recently used are removed.
 
 The key is a BLAKE2 hash of the triangle vertices' bytes, their shape and dtype, the leaf size and this
 module's FORMAT, so a mesh that changes gets a new key. A file is written to a temporary beside its target
@@ -22,6 +25,9 @@ from .bvh import LEAF_BIT, LEAF_SIZE, Layout, layout
 FORMAT = 1            # bump when Layout or the build changes
 IN_MEMORY = 4         # layouts kept in this process
 ENV = "TRACER_BVH_CACHE"
+OFF = ("off", "0", "no", "none", "")
+DISK_MIN_TRIANGLES = 50_000   # below, a build takes about 0.1 s or less: not worth a file
+CAPACITY = 2 ** 30            # bytes on disk
 _memory: OrderedDict[str, Layout] = OrderedDict()
 
 
@@ -33,20 +39,32 @@ def key(tri_vertices: np.ndarray) -> str:
     return h.hexdigest()
 
 
+def disk_folder() -> Path | None:
+    """Where BVHs are kept on disk: $TRACER_BVH_CACHE, else the user's cache folder; None when off."""
+    value = os.environ.get(ENV)
+    if value is not None:
+        return None if value.strip().lower() in OFF else Path(value)
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "tracer" / "bvh"
+
+
 def cached_layout(tri_vertices: np.ndarray, folder: Path | str | None = None) -> Layout:
-    """The BVH Layout of these triangles: from this process's cache, else from `folder` (default: the
-    folder in $TRACER_BVH_CACHE, none if unset), else built (and then stored in both)."""
+    """The BVH Layout of these triangles: from this process's cache, else from `folder` (default:
+    disk_folder(), for meshes of DISK_MIN_TRIANGLES or more), else built (and then stored in both)."""
     k = key(tri_vertices)
     if k in _memory:
         _memory.move_to_end(k)
         return _memory[k]
-    folder = (os.environ.get(ENV) or None) if folder is None else folder
-    path = Path(folder) / f"{k}.npz" if folder else None
+    if folder is None and len(tri_vertices) >= DISK_MIN_TRIANGLES:
+        folder = disk_folder()
+    path = Path(folder) / f"{k}.npz" if folder is not None else None
     tables = _load(path, k, len(tri_vertices)) if path is not None else None
     if tables is None:
         tables = layout(tri_vertices)
         if path is not None:
             _save(path, k, tables)
+            _evict(path.parent, CAPACITY)
+    else:
+        _touch(path)
     _memory[k] = tables
     while len(_memory) > IN_MEMORY:
         _memory.popitem(last=False)
@@ -56,6 +74,31 @@ def cached_layout(tri_vertices: np.ndarray, folder: Path | str | None = None) ->
 def clear_memory() -> None:
     """Forgets the layouts kept in this process."""
     _memory.clear()
+
+
+def _touch(path: Path) -> None:
+    """Marks a file as just used (eviction removes the least recently used first)."""
+    try:
+        os.utime(path)
+    except OSError:
+        pass
+
+
+def _evict(folder: Path, capacity: int) -> None:
+    """Removes the least recently used BVH files until the folder holds at most `capacity` bytes."""
+    try:
+        files = [(f.stat().st_mtime, f.stat().st_size, f) for f in folder.glob("*.npz")]
+    except OSError:
+        return
+    total = sum(size for _, size, _ in files)
+    for _, size, f in sorted(files, key=lambda x: x[0]):
+        if total <= capacity:
+            break
+        try:
+            f.unlink()
+            total -= size
+        except OSError:
+            pass
 
 
 def _save(path: Path, k: str, tables: Layout) -> None:

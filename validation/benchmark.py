@@ -311,7 +311,7 @@ def whole_process(scene: Path, progress) -> dict:
         commands["tracer, BVH from disk cache"] = commands["tracer"]
         env = {name: dict(os.environ) for name in times}
         for e in env.values():
-            e.pop("TRACER_BVH_CACHE", None)
+            e["TRACER_BVH_CACHE"] = "off"
         env["tracer, BVH from disk cache"]["TRACER_BVH_CACHE"] = str(cache)
         subprocess.run([sys.executable, "-c", "import sys, tracer; from tracer.geometry import SceneGeometry; "
                         "SceneGeometry(tracer.load_scene(sys.argv[1]))", str(scene)],
