@@ -5,8 +5,10 @@ leaves hold up to LEAF_SIZE triangles. The kernel stores each inner node as the 
 so that one step tests both, and walks the tree depth first, nearer child first, with a per-lane stack of
 the far children still to visit: the shrinking closest hit then culls the far boxes. The stack lives in
 registers, one loop variable per tree level (a push shifts them down, a pop up), since Dr.Jit 1.5's local
-memory (dr.alloc_local) lost pushed entries on the LLVM backend. The leaves among a node's children are
-tested in one branch, which a packet of lanes skips when none of them reaches a leaf.
+memory (dr.alloc_local) lost pushed entries on the LLVM backend. Leaves go on the stack like inner nodes:
+each step of the loop a lane either tests the two children of an inner node or one triangle of a leaf, the
+triangle test in a branch that a packet of lanes skips when none of them is at a leaf. (Testing a node's
+child leaves whole within its step cost a packet every triangle test of any lane's leaves in most steps.)
 
 An inner node is eight 32-bit words (32 bytes), gathered in one packet load: per child, its box's corners
 as 16-bit coordinates on a grid over the root box, rounded outwards by a further grid step (a margin far
@@ -261,93 +263,100 @@ class BVHKernel:
         t_far = dr.min(dr.maximum(t0, t1))
         return (t_near <= t_far) & (t_far >= 0) & (t_near <= t_max), t_near, x[4 * k + 3]
 
-    def _walk(self, o: Array3f, d: Array3f, active: Bool, t_max, visit_leaf, finished, payload: tuple,
-              count_steps: bool = False) -> tuple:
+    def _walk(self, o: Array3f, d: Array3f, active: Bool, t_max, visit_triangle, finished, payload: tuple,
+              count_work: bool = False) -> tuple:
         """Depth-first traversal, nearer child first, of the boxes that o + t d, 0 <= t <= t_max(payload),
-        enters: payload = visit_leaf(leaf word, *payload) at each such leaf; a lane stops at the end or
-        once finished(*payload). With count_steps (diagnostics only), the payload is followed by the
-        number of nodes each lane visited."""
+        enters: payload = visit_triangle(triangle slot, *payload) for each triangle of each such leaf; a lane
+        stops at the end or once finished(*payload). Each step a lane either tests both children of an inner
+        node or one triangle of a leaf. With count_work (diagnostics only), the payload is followed by the
+        number of inner nodes each lane visited and of triangles it tested."""
         (slope, offset), none, n = self.grid.ray_terms(o, d), UInt32(0xFFFFFFFF), len(payload)
-        counter = (UInt32(0),) if count_steps else ()
+        counter = (UInt32(0), UInt32(0)) if count_work else ()
         c = len(counter)
 
-        def cond(node, *rest):
-            return (node != none) & ~finished(*rest[c:c + n])
+        def cond(item, *rest):
+            return (item != none) & ~finished(*rest[c:c + n])
 
-        def body(node, *rest):
-            counted, payload, stack = tuple(k + 1 for k in rest[:c]), rest[c:c + n], rest[c + n:]
-            x = dr.gather(ArrayXu, self.nodes, node, shape=(8, dr.width(node)))
+        def body(item, *rest):
+            payload, stack = rest[c:c + n], rest[c + n:]
+            at_leaf = item >= LEAF_BIT          # else an inner node (`none` lanes are no longer in the loop)
+            inner = ~at_leaf
+            counted = (rest[0] + dr.select(inner, 1, 0), rest[1] + dr.select(at_leaf, 1, 0)) if c else ()
+            payload = dr.if_stmt((item, *payload), at_leaf,
+                                 lambda i, *p: visit_triangle((i & (LEAF_BIT - 1)) >> 3, *p), lambda i, *p: p)
+            x = dr.gather(ArrayXu, self.nodes, item, inner, shape=(8, dr.width(item)))
             t_end = t_max(*payload)
             (hit_a, t_a, link_a), (hit_b, t_b, link_b) = (self._child(x, k, slope, offset, t_end) for k in (0, 1))
-            leaf_a, leaf_b = hit_a & (link_a >= LEAF_BIT), hit_b & (link_b >= LEAF_BIT)
-            words = dr.select(leaf_a, link_a & (LEAF_BIT - 1), 0), dr.select(leaf_b, link_b & (LEAF_BIT - 1), 0)
-            payload = dr.if_stmt((*words, *payload), leaf_a | leaf_b,   # word 0: an empty leaf
-                                 lambda w0, w1, *p: visit_leaf(w1, *visit_leaf(w0, *p)), lambda w0, w1, *p: p)
-            inner_a, inner_b = hit_a & (link_a < LEAF_BIT), hit_b & (link_b < LEAF_BIT)
+            hit_a, hit_b = inner & hit_a, inner & hit_b
             a_first = t_a <= t_b
-            near = dr.select(inner_a & (~inner_b | a_first), link_a, link_b)
-            push, pop = inner_a & inner_b, ~(inner_a | inner_b)
+            near = dr.select(hit_a & (~hit_b | a_first), link_a, link_b)
+            more = at_leaf & ((item & 7) > 1)   # the leaf's next triangle: first + 1, count - 1
+            push, pop = hit_a & hit_b, ~(hit_a | hit_b | more)
             pushed = (dr.select(a_first, link_b, link_a), *stack[:-1])   # the far child on top
             popped = (*stack[1:], none)
-            node = dr.select(pop, stack[0], near)
+            item = dr.select(pop, stack[0], dr.select(more, item + 7, near))
             stack = tuple(dr.select(push, p, dr.select(pop, q, s)) for p, q, s in zip(pushed, popped, stack))
-            return (node, *counted, *payload, *stack)
+            return (item, *counted, *payload, *stack)
 
         start = dr.select(active, UInt32(0), none)
         state = (start, *counter, *payload, *(UInt32(none) for _ in range(self.stack_size)))
         out = dr.while_loop(state, cond, body)
         return (*out[1 + c:1 + c + n], *out[1:1 + c])
 
-    def _leaf(self, word, o, d, t_min, t_best, skip, target):
-        """The nearest hit among a leaf's triangles: (t, prim, b1, b2), t = inf if none."""
-        first, count = word >> 3, word & 7
-        t_hit, hit_prim, u_hit, v_hit = Float(INF), UInt32(0), Float(0), Float(0)
-        for k in range(LEAF_SIZE):
-            active = k < count
-            x = dr.gather(ArrayXf, self.tris, first + k, active, shape=(12, dr.width(first)))
-            prim = UInt32(dr.reinterpret_array(_UINT_JIT, x[3]))
-            active &= prim != skip
-            if target is not None:
-                active &= prim != target
-            t, b1, b2 = intersect.ray_triangle(o, d, Array3f(x[0], x[1], x[2]), Array3f(x[4], x[5], x[6]),
-                                               Array3f(x[8], x[9], x[10]), t_min, t_best)
-            closer = active & (t < t_hit)
-            t_hit, hit_prim = dr.select(closer, t, t_hit), dr.select(closer, prim, hit_prim)
-            u_hit, v_hit = dr.select(closer, b1, u_hit), dr.select(closer, b2, v_hit)
-        return t_hit, hit_prim, u_hit, v_hit
+    def _triangle(self, slot, o, d, t_min, t_max, skip, target):
+        """The triangle in `slot`: (t, prim, b1, b2), t = inf if o + t d misses it in (t_min, t_max) or it is
+        `skip` or `target`."""
+        x = dr.gather(ArrayXf, self.tris, slot, shape=(12, dr.width(slot)))
+        prim = UInt32(dr.reinterpret_array(_UINT_JIT, x[3]))
+        ok = prim != skip
+        if target is not None:
+            ok &= prim != target
+        t, b1, b2 = intersect.ray_triangle(o, d, Array3f(x[0], x[1], x[2]), Array3f(x[4], x[5], x[6]),
+                                           Array3f(x[8], x[9], x[10]), t_min, t_max)
+        return dr.select(ok, t, INF), prim, b1, b2
 
     def closest_hit(self, o: Array3f, d: Array3f, t_min, t_best: Float, prim: UInt32, b1: Float, b2: Float,
                     skip: UInt32):
         """Improves (t_best, prim, b1, b2) with the BVH's triangles."""
-        def visit_leaf(word, t_best, prim, b1, b2):
-            t, leaf_prim, u, v = self._leaf(word, o, d, t_min, t_best, skip, None)
+        def visit_triangle(slot, t_best, prim, b1, b2):
+            t, tri_prim, u, v = self._triangle(slot, o, d, t_min, t_best, skip, None)
             closer = t < t_best
-            return (dr.select(closer, t, t_best), dr.select(closer, leaf_prim, prim),
+            return (dr.select(closer, t, t_best), dr.select(closer, tri_prim, prim),
                     dr.select(closer, u, b1), dr.select(closer, v, b2))
 
-        return self._walk(o, d, Bool(True), lambda t_best, *_: t_best, visit_leaf, lambda *_: Bool(False),
+        return self._walk(o, d, Bool(True), lambda t_best, *_: t_best, visit_triangle, lambda *_: Bool(False),
                           (Float(t_best), UInt32(prim), Float(b1), Float(b2)))
 
     def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32,
                  active: Bool = True) -> Bool:
         """Whether a BVH triangle other than skip and target lies on o + t d, 0 < t < dist; False where
         not active (such lanes skip the traversal)."""
-        def visit_leaf(word, blocked):
-            return (blocked | (self._leaf(word, o, d, 0.0, dist, skip, target)[0] < dist),)
+        def visit_triangle(slot, blocked):
+            return (blocked | (self._triangle(slot, o, d, 0.0, dist, skip, target)[0] < dist),)
 
-        return self._walk(o, d, Bool(active), lambda _: dist, visit_leaf, lambda blocked: blocked,
+        return self._walk(o, d, Bool(active), lambda _: dist, visit_triangle, lambda blocked: blocked,
                           (Bool(False),))[0]
 
     def closest_hit_work(self, o: Array3f, d: Array3f) -> tuple[UInt32, UInt32]:
-        """Diagnostics: the nodes visited and the triangles tested by each ray's closest-hit traversal (the
-        same walk as closest_hit, counting)."""
-        def visit_leaf(word, t_best, tests):
-            t, _, _, _ = self._leaf(word, o, d, 0.0, t_best, UInt32(0xFFFFFFFF), None)
-            return dr.minimum(t, t_best), tests + (word & 7)
+        """Diagnostics: the inner nodes visited and the triangles tested by each ray's closest-hit traversal
+        (the same walk as closest_hit, counting)."""
+        def visit_triangle(slot, t_best):
+            return (dr.minimum(self._triangle(slot, o, d, 0.0, t_best, UInt32(0xFFFFFFFF), None)[0], t_best),)
 
-        _, tests, steps = self._walk(o, d, Bool(True), lambda t_best, _: t_best, visit_leaf,
-                                     lambda *_: Bool(False), (Float(INF), UInt32(0)), count_steps=True)
+        _, steps, tests = self._walk(o, d, Bool(True), lambda t_best: t_best, visit_triangle,
+                                     lambda *_: Bool(False), (Float(INF),), count_work=True)
         return steps, tests
+
+
+def _min(a, b):
+    """min(a, b) for operands that are never NaN, as one instruction (dr.minimum also orders NaNs and
+    signed zeros, in several)."""
+    return dr.select(a < b, a, b)
+
+
+def _max(a, b):
+    """max(a, b) for operands that are never NaN, as one instruction."""
+    return dr.select(a > b, a, b)
 
 
 def _aligned(a: np.ndarray, alignment: int = 64) -> np.ndarray:
