@@ -259,8 +259,8 @@ class BVHKernel:
         and its link; (slope, offset): the ray's BoxGrid.ray_terms."""
         q0, q1 = self.grid.coords([x[4 * k + i] for i in range(3)])
         t0, t1 = dr.fma(q0, slope, offset), dr.fma(q1, slope, offset)
-        t_near = dr.max(dr.minimum(t0, t1))
-        t_far = dr.min(dr.maximum(t0, t1))
+        near, far = _min(t0, t1), _max(t0, t1)
+        t_near, t_far = _max(_max(near.x, near.y), near.z), _min(_min(far.x, far.y), far.z)
         return (t_near <= t_far) & (t_far >= 0) & (t_near <= t_max), t_near, x[4 * k + 3]
 
     def _walk(self, o: Array3f, d: Array3f, active: Bool, t_max, visit_triangle, finished, payload: tuple,
