@@ -1,7 +1,12 @@
 """A bounding volume hierarchy over triangles: built on the host, traversed in the kernel.
 
-The tree splits at the median centroid along the longest axis (built one level at a time, vectorised);
-leaves hold up to LEAF_SIZE triangles. The kernel stores each inner node as the boxes of its two children,
+The tree is built top-down with the surface area heuristic (SAH: MacDonald and Booth, "Heuristics for ray
+tracing using space subdivision", The Visual Computer 6(3), 1990), binned as in Wald, "On fast construction
+of SAH-based bounding volume hierarchies" (IEEE Symposium on Interactive Ray Tracing, 2007) and pbrt-v4:
+each node's triangles are cut across the axis of their centroids' largest extent, between BINS bins of
+equal counts, where the expected cost of a ray's walk through the children is least, and a node of up to
+LEAF_SIZE triangles stays a leaf where that is cheaper than splitting it. All the nodes of a level are
+split at once, vectorised with NumPy. The kernel stores each inner node as the boxes of its two children,
 so that one step tests both, and walks the tree depth first, nearer child first, with a per-lane stack of
 the far children still to visit: the shrinking closest hit then culls the far boxes. The stack lives in
 registers, one loop variable per tree level (a push shifts them down, a pop up), since Dr.Jit 1.5's local
@@ -29,7 +34,9 @@ import numpy as np
 from . import intersect
 from .jit import INF, PRECISION, Array3f, ArrayXf, ArrayXu, Bool, Float, UInt32, UInt64
 
-LEAF_SIZE = 2
+LEAF_SIZE = 4      # most triangles in a leaf (at most 7: a leaf's link holds the count in 3 bits)
+BINS = 16          # SAH candidate splits per node: between bins of equal triangle counts
+SAMPLES = 256      # triangles whose boxes stand for a node's bins (all of a smaller node's)
 GRID = 0xFFFF          # largest grid coordinate of a node's box corner
 LEAF_BIT = 1 << 31     # marks a leaf's link word
 _FLOAT, _UINT = (np.float64, np.uint64) if PRECISION == "double" else (np.float32, np.uint32)
@@ -63,13 +70,14 @@ class Tree:
 
 
 def build(tri_vertices: np.ndarray) -> Tree:
-    """Median-split BVH over triangles given as (n, 3, 3) vertices.
+    """SAH BVH over triangles given as (n, 3, 3) vertices.
 
-    Each node's triangles are split at the median centroid along the longest axis of their centroids'
-    extent (centroids rounded to float32). The triangle ids are sorted by centroid once per axis; each
-    level then splits all its nodes at once, partitioning every axis's list stably into the children's
-    halves (linear time, no sort per level), so that each list stays sorted within every node. Boxes are
-    reduced over the leaves' triangles, then merged bottom-up."""
+    Each node's triangles are split by a plane across the axis of their centroids' largest extent
+    (centroids rounded to float32), where the surface area heuristic's cost is least (_sah); a node becomes
+    a leaf where that costs less than splitting it and it holds at most LEAF_SIZE triangles. The triangle ids
+    are sorted by centroid once per axis; each level then splits all its nodes at once, partitioning every
+    axis's list stably into the children's parts (linear time, no sort per level), so that each list stays
+    sorted within every node. Boxes are reduced over the leaves' triangles, then merged bottom-up."""
     v = tri_vertices
     lo_t, hi_t = np.minimum(np.minimum(v[:, 0], v[:, 1]), v[:, 2]), np.maximum(np.maximum(v[:, 0], v[:, 1]), v[:, 2])
     centroid = ((lo_t + hi_t) / 2).astype(np.float32)
@@ -79,22 +87,26 @@ def build(tri_vertices: np.ndarray) -> Tree:
         rank[a, by_index[a]] = np.arange(len(v), dtype=np.uint32)
     # (3, n): triangle ids sorted by centroid along each axis, ties in it by the next axis
     ids = np.stack([by_index[(a + 1) % 3][_argsort(centroid[:, a], rank[(a + 1) % 3])] for a in range(3)])
+    boxes = np.concatenate([-lo_t, hi_t], 1).astype(np.float32)   # (n, 6): the triangles' boxes as -lo, hi
     right_side = np.zeros(len(v), bool)
     left, right, first, count = [], [], [], []
     begin, size, n_nodes, levels = np.array([0]), np.array([len(v)]), 1, []
     while len(begin):
         levels.append((n_nodes - len(begin), n_nodes))
-        split = size > LEAF_SIZE
+        split = size > 1
+        axis, half = np.zeros(len(begin), np.int64), size // 2
+        if split.any():
+            axis[split], half[split], split_cost = _sah(ids, centroid, boxes, begin[split], size[split])
+            split[split] = (size[split] > LEAF_SIZE) | (split_cost < size[split])
         first.append(np.where(split, 0, begin))
         count.append(np.where(split, 0, size))
         child = np.full(len(begin), -1)
         child[split] = n_nodes + 2 * np.arange(split.sum())
         left.append(child)
         right.append(np.where(split, child + 1, -1))
-        b, s = begin[split], size[split]
-        half = s // 2
+        b, s, half = begin[split], size[split], half[split]
         if len(b):
-            _split(ids, centroid, right_side, b, s, half)
+            _split(ids, right_side, b, s, axis[split], half)
         begin = np.stack([b, b + half], 1).ravel()
         size = np.stack([half, s - half], 1).ravel()
         n_nodes += len(begin)
@@ -112,6 +124,55 @@ def build(tri_vertices: np.ndarray) -> Tree:
     return Tree(lo, hi, left, right, first, count, order, levels)
 
 
+def _sah(ids: np.ndarray, centroid: np.ndarray, boxes: np.ndarray, b: np.ndarray,
+         s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The binned surface area heuristic's split of each node [b, b + s) of sorted slots (s >= 2), all at
+    once: (axis, left triangles, cost). The axis is that of the centroids' largest extent; the node's list
+    sorted along it is cut into min(s, BINS) bins of equal counts, and a split lies between two bins. Its
+    cost, in steps of the walk (an inner node or a triangle test each), is 1 + (A_l n_l + A_r n_r) / A:
+    the node's own step, then each child's triangles weighted by the chance that a ray through the node's
+    box enters the child's (surface areas A). A bin's box is that of SAMPLES / BINS triangles evenly spread
+    over it (all of them in a node of up to SAMPLES). Near-equal costs go to the more even split (so that
+    equal triangles do not make a chain). `boxes`: (n, 6) the triangles' boxes as -lo, hi."""
+    n = len(b)
+    axes = np.arange(3)[:, None]
+    c_lo, c_hi = centroid[ids[:, b], axes], centroid[ids[:, b + s - 1], axes]   # (3, nodes): sorted lists' ends
+    axis = np.argmax(c_hi - c_lo, axis=0)
+    q, bins = np.minimum(s, SAMPLES), np.minimum(s, BINS)
+    sample_node = np.repeat(np.arange(n), q)
+    first_sample = np.cumsum(q) - q
+    i = np.arange(len(sample_node)) - first_sample[sample_node]
+    box = boxes[ids[axis[sample_node], b[sample_node] + i * s[sample_node] // q[sample_node]]]   # (samples, 6)
+    node = np.repeat(np.arange(n), bins)   # of each bin
+    node_bins = np.cumsum(bins) - bins
+    j = np.arange(len(node)) - node_bins[node]
+    binned = box if len(box) == len(node) else \
+        np.maximum.reduceat(box, first_sample[node] + q[node] * j // bins[node], axis=0)   # (bins, 6)
+    half, cost = np.empty(n, np.int64), np.empty(n)
+    extent = lambda y: y[..., :3].astype(np.float64) + y[..., 3:]   # maxima are exact: float64 for extents
+    for count in np.unique(bins):          # nodes of `count` bins: one (count, nodes, 6) array
+        sel = np.flatnonzero(bins == count)
+        x = binned[node_bins[sel] + np.arange(count)[:, None]]
+        prefix = np.maximum.accumulate(x, axis=0)
+        suffix = np.maximum.accumulate(x[::-1], axis=0)[::-1]
+        s_sel, q_sel = s[sel], q[sel]
+        n_left = (q_sel * np.arange(1, count)[:, None] // count) * s_sel // q_sel   # triangles in bins before k
+        c = n_left * _area(extent(prefix[:-1])) + (s_sel - n_left) * _area(extent(suffix[1:]))
+        c *= 1 + 1e-6 * np.abs(2 * n_left - s_sel) / s_sel
+        best = np.argmin(c, axis=0)
+        whole = _area(extent(prefix[-1]))
+        half[sel] = n_left[best, np.arange(len(sel))]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cost[sel] = np.where(whole > 0, 1 + c[best, np.arange(len(sel))] / whole, np.inf)
+    return axis, half, cost
+
+
+def _area(extent: np.ndarray) -> np.ndarray:
+    """Surface areas of boxes of extents (..., 3)."""
+    x, y, z = extent[..., 0], extent[..., 1], extent[..., 2]
+    return 2 * (x * y + y * z + z * x)
+
+
 def _argsort(key: np.ndarray, tie: np.ndarray) -> np.ndarray:
     """The tie values (unique uint32) of float32 keys sorted by (key, tie), in one sort of 64-bit words:
     the key's bits mapped to an order-preserving unsigned integer above the tie (faster than NumPy's
@@ -121,15 +182,11 @@ def _argsort(key: np.ndarray, tie: np.ndarray) -> np.ndarray:
     return (np.sort(bits << 32 | tie.astype(np.uint64)) & 0xFFFFFFFF).astype(np.int32)
 
 
-def _split(ids: np.ndarray, centroid: np.ndarray, right_side: np.ndarray, b: np.ndarray, s: np.ndarray,
+def _split(ids: np.ndarray, right_side: np.ndarray, b: np.ndarray, s: np.ndarray, axis: np.ndarray,
            half: np.ndarray) -> None:
     """Splits nodes [b, b + s) of sorted slots in place: in each, the first half[i] triangles of its list
-    along its longest centroid axis form the left child, and every axis's list is partitioned stably,
-    left child first."""
-    axes = np.arange(3)[:, None]
+    along axis[i] form the left child, and every axis's list is partitioned stably, left child first."""
     b, s, half = b.astype(np.int32), s.astype(np.int32), half.astype(np.int32)   # int32: less memory traffic
-    extent = centroid[ids[:, b + s - 1], axes] - centroid[ids[:, b], axes]   # (3, nodes)
-    axis = np.argmax(extent, axis=0)
     whole = s.sum() == ids.shape[1]          # the level's nodes cover every slot (no leaves yet)
     slots = np.arange(ids.shape[1], dtype=np.int32) if whole else _ranges(b, s).astype(np.int32)
     node = np.repeat(np.arange(len(b), dtype=np.int32), s)
