@@ -149,7 +149,6 @@ def _sah(ids: np.ndarray, centroid: np.ndarray, boxes: np.ndarray, b: np.ndarray
     binned = box if len(box) == len(node) else \
         np.maximum.reduceat(box, first_sample[node] + q[node] * j // bins[node], axis=0)   # (bins, 6)
     half, cost = np.empty(n, np.int64), np.empty(n)
-    extent = lambda y: y[..., :3].astype(np.float64) + y[..., 3:]   # maxima are exact: float64 for extents
     for count in np.unique(bins):          # nodes of `count` bins: one (count, nodes, 6) array
         sel = np.flatnonzero(bins == count)
         x = binned[node_bins[sel] + np.arange(count)[:, None]]
@@ -157,14 +156,19 @@ def _sah(ids: np.ndarray, centroid: np.ndarray, boxes: np.ndarray, b: np.ndarray
         suffix = np.maximum.accumulate(x[::-1], axis=0)[::-1]
         s_sel, q_sel = s[sel], q[sel]
         n_left = (q_sel * np.arange(1, count)[:, None] // count) * s_sel // q_sel   # triangles in bins before k
-        c = n_left * _area(extent(prefix[:-1])) + (s_sel - n_left) * _area(extent(suffix[1:]))
+        c = n_left * _area(_extent(prefix[:-1])) + (s_sel - n_left) * _area(_extent(suffix[1:]))
         c *= 1 + 1e-6 * np.abs(2 * n_left - s_sel) / s_sel
         best = np.argmin(c, axis=0)
-        whole = _area(extent(prefix[-1]))
+        whole = _area(_extent(prefix[-1]))
         half[sel] = n_left[best, np.arange(len(sel))]
         with np.errstate(divide="ignore", invalid="ignore"):
             cost[sel] = np.where(whole > 0, 1 + c[best, np.arange(len(sel))] / whole, np.inf)
     return axis, half, cost
+
+
+def _extent(box: np.ndarray) -> np.ndarray:
+    """Extents (..., 3) of boxes (..., 6) held as -lo, hi, in float64 (their maxima were exact in float32)."""
+    return box[..., :3].astype(np.float64) + box[..., 3:]
 
 
 def _area(extent: np.ndarray) -> np.ndarray:
