@@ -8,7 +8,7 @@ import tracer
 import tracer.geometry as geometry
 import drjit as dr
 
-from tracer.bvh import LEAF_BIT, LEAF_SIZE, BVHKernel, _aligned, build, depth_first
+from tracer.bvh import BINS, LEAF_BIT, LEAF_SIZE, BVHKernel, _aligned, build, depth_first
 from tracer.jit import NO_PRIM, Array3f, ArrayXu, Bool, Float, UInt32
 
 from .conftest import SCENES
@@ -78,7 +78,7 @@ def test_node_table_reaches_every_triangle_once(n):
                 reached += range(first, first + count)
             else:
                 pending.append(link)
-    expected = sorted(list(range(n)) * (2 if n <= LEAF_SIZE else 1))   # a lone leaf is both children of its root
+    expected = sorted(list(range(n)) * (2 if build(tris).left[0] < 0 else 1))   # a lone leaf is both children of its root
     assert sorted(reached) == expected
 
 
@@ -150,28 +150,63 @@ def test_device_tables_start_on_a_cache_line(offset):
     np.testing.assert_array_equal(out, a)
 
 
+def _node_slots(tree):
+    """Each node's triangles: its leaves' slots, gathered bottom-up."""
+    slots = {}
+    for begin, end in tree.levels[::-1]:
+        for node in range(begin, end):
+            slots[node] = (tree.order[tree.first[node]:tree.first[node] + tree.count[node]]
+                           if tree.left[node] < 0 else np.concatenate([slots[tree.left[node]], slots[tree.right[node]]]))
+    return slots
+
+
+def _area(lo, hi):
+    e = hi - lo
+    return 2 * (e[0] * e[1] + e[1] * e[2] + e[2] * e[0])
+
+
 @pytest.mark.parametrize("ties", [False, True])
-def test_build_splits_each_node_at_the_median_of_its_longest_axis(ties):
-    """Every inner node: the left child holds the floor(n/2) triangles whose float32 centroids come first
-    along the axis of the node's largest centroid extent; also with many equal centroid coordinates."""
+def test_build_splits_each_node_where_the_surface_area_heuristic_is_least(ties):
+    """Every inner node: its children are the triangles on either side of a plane across the axis of the
+    node's largest centroid extent (float32 centroids), and no other split between its BINS equal-count
+    bins along that axis (sorted by centroid, ties by the next axis) has a lower SAH cost n_l A_l + n_r A_r
+    (recomputed here in float64, by brute force over the candidates); also with many equal centroid
+    coordinates. Leaves hold at most LEAF_SIZE triangles; boxes are exact."""
     rng = np.random.default_rng(11)
     tris = rng.uniform(-1, 1, (2000, 1, 3)) * [4.0, 1.0, 0.5] + rng.uniform(-0.05, 0.05, (2000, 3, 3))
     if ties:
         tris = np.round(tris * 4) / 4
     tree = build(tris)
     centroid = ((tris.min(axis=1) + tris.max(axis=1)) / 2).astype(np.float32)
-    slots = {}   # each node's triangles: its leaves' slots, gathered bottom-up
-    for begin, end in tree.levels[::-1]:
-        for node in range(begin, end):
-            slots[node] = (tree.order[tree.first[node]:tree.first[node] + tree.count[node]]
-                           if tree.left[node] < 0 else np.concatenate([slots[tree.left[node]], slots[tree.right[node]]]))
+    slots = _node_slots(tree)
+    assert (tree.count[~tree.inner] <= LEAF_SIZE).all() and (tree.count[~tree.inner] >= 1).all()
     for node in np.flatnonzero(tree.inner):
         a, b = centroid[slots[tree.left[node]]], centroid[slots[tree.right[node]]]
-        both = np.vstack([a, b])
-        axis = np.argmax(both.max(axis=0) - both.min(axis=0))
-        assert len(a) == len(both) // 2 and a[:, axis].max() <= b[:, axis].min()
-        lo, hi = tris[slots[node]].min(axis=(0, 1)), tris[slots[node]].max(axis=(0, 1))
+        mine = np.concatenate([slots[tree.left[node]], slots[tree.right[node]]])
+        c = centroid[mine]
+        axis = np.argmax(c.max(axis=0) - c.min(axis=0))
+        assert a[:, axis].max() <= b[:, axis].min()
+        lo, hi = tris[mine].min(axis=(0, 1)), tris[mine].max(axis=(0, 1))
         assert np.array_equal(tree.lo[node], lo) and np.array_equal(tree.hi[node], hi)   # exact boxes
+        if len(mine) > 256:
+            continue   # bins of sampled triangles: checked on the smaller nodes
+        ordered = mine[np.lexsort((mine, c[:, (axis + 1) % 3], c[:, axis]))]
+        bins = min(len(mine), BINS)
+
+        def cost(n_left):
+            left, right = tris[ordered[:n_left]], tris[ordered[n_left:]]
+            return (n_left * _area(left.min(axis=(0, 1)), left.max(axis=(0, 1)))
+                    + len(right) * _area(right.min(axis=(0, 1)), right.max(axis=(0, 1))))
+
+        best = min(cost(len(mine) * k // bins) for k in range(1, bins))
+        assert cost(len(a)) <= best * (1 + 1e-5)
+
+
+def test_build_of_equal_triangles_stays_balanced():
+    """Equal triangles cost the same however they are split: the build halves them (no chain of nodes,
+    which would need a deep traversal stack)."""
+    tree = build(np.tile(np.eye(3), (1000, 1, 1)))
+    assert len(tree.levels) <= 10 and (tree.count[~tree.inner] <= LEAF_SIZE).all()
 
 
 def test_the_disk_cache_folder(monkeypatch, tmp_path):

@@ -1,12 +1,19 @@
 """A bounding volume hierarchy over triangles: built on the host, traversed in the kernel.
 
-The tree splits at the median centroid along the longest axis (built one level at a time, vectorised);
-leaves hold up to LEAF_SIZE triangles. The kernel stores each inner node as the boxes of its two children,
+The tree is built top-down with the surface area heuristic (SAH: MacDonald and Booth, "Heuristics for ray
+tracing using space subdivision", The Visual Computer 6(3), 1990), binned as in Wald, "On fast construction
+of SAH-based bounding volume hierarchies" (IEEE Symposium on Interactive Ray Tracing, 2007) and pbrt-v4:
+each node's triangles are cut across the axis of their centroids' largest extent, between BINS bins of
+equal counts, where the expected cost of a ray's walk through the children is least, and a node of up to
+LEAF_SIZE triangles stays a leaf where that is cheaper than splitting it. All the nodes of a level are
+split at once, vectorised with NumPy. The kernel stores each inner node as the boxes of its two children,
 so that one step tests both, and walks the tree depth first, nearer child first, with a per-lane stack of
 the far children still to visit: the shrinking closest hit then culls the far boxes. The stack lives in
 registers, one loop variable per tree level (a push shifts them down, a pop up), since Dr.Jit 1.5's local
-memory (dr.alloc_local) lost pushed entries on the LLVM backend. The leaves among a node's children are
-tested in one branch, which a packet of lanes skips when none of them reaches a leaf.
+memory (dr.alloc_local) lost pushed entries on the LLVM backend. Leaves go on the stack like inner nodes:
+each step of the loop a lane either tests the two children of an inner node or one triangle of a leaf, the
+triangle test in a branch that a packet of lanes skips when none of them is at a leaf. (Testing a node's
+child leaves whole within its step cost a packet every triangle test of any lane's leaves in most steps.)
 
 An inner node is eight 32-bit words (32 bytes), gathered in one packet load: per child, its box's corners
 as 16-bit coordinates on a grid over the root box, rounded outwards by a further grid step (a margin far
@@ -27,7 +34,9 @@ import numpy as np
 from .shapes.triangle import ray_triangle
 from .jit import INF, PRECISION, Array3f, ArrayXf, ArrayXu, Bool, Float, UInt32, UInt64
 
-LEAF_SIZE = 2
+LEAF_SIZE = 4      # most triangles in a leaf (at most 7: a leaf's link holds the count in 3 bits)
+BINS = 16          # SAH candidate splits per node: between bins of equal triangle counts
+SAMPLES = 256      # triangles whose boxes stand for a node's bins (all of a smaller node's)
 GRID = 0xFFFF          # largest grid coordinate of a node's box corner
 LEAF_BIT = 1 << 31     # marks a leaf's link word
 _FLOAT, _UINT = (np.float64, np.uint64) if PRECISION == "double" else (np.float32, np.uint32)
@@ -61,13 +70,14 @@ class Tree:
 
 
 def build(tri_vertices: np.ndarray) -> Tree:
-    """Median-split BVH over triangles given as (n, 3, 3) vertices.
+    """SAH BVH over triangles given as (n, 3, 3) vertices.
 
-    Each node's triangles are split at the median centroid along the longest axis of their centroids'
-    extent (centroids rounded to float32). The triangle ids are sorted by centroid once per axis; each
-    level then splits all its nodes at once, partitioning every axis's list stably into the children's
-    halves (linear time, no sort per level), so that each list stays sorted within every node. Boxes are
-    reduced over the leaves' triangles, then merged bottom-up."""
+    Each node's triangles are split by a plane across the axis of their centroids' largest extent
+    (centroids rounded to float32), where the surface area heuristic's cost is least (_sah); a node becomes
+    a leaf where that costs less than splitting it and it holds at most LEAF_SIZE triangles. The triangle ids
+    are sorted by centroid once per axis; each level then splits all its nodes at once, partitioning every
+    axis's list stably into the children's parts (linear time, no sort per level), so that each list stays
+    sorted within every node. Boxes are reduced over the leaves' triangles, then merged bottom-up."""
     v = tri_vertices
     lo_t, hi_t = np.minimum(np.minimum(v[:, 0], v[:, 1]), v[:, 2]), np.maximum(np.maximum(v[:, 0], v[:, 1]), v[:, 2])
     centroid = ((lo_t + hi_t) / 2).astype(np.float32)
@@ -77,22 +87,26 @@ def build(tri_vertices: np.ndarray) -> Tree:
         rank[a, by_index[a]] = np.arange(len(v), dtype=np.uint32)
     # (3, n): triangle ids sorted by centroid along each axis, ties in it by the next axis
     ids = np.stack([by_index[(a + 1) % 3][_argsort(centroid[:, a], rank[(a + 1) % 3])] for a in range(3)])
+    boxes = np.concatenate([-lo_t, hi_t], 1).astype(np.float32)   # (n, 6): the triangles' boxes as -lo, hi
     right_side = np.zeros(len(v), bool)
     left, right, first, count = [], [], [], []
     begin, size, n_nodes, levels = np.array([0]), np.array([len(v)]), 1, []
     while len(begin):
         levels.append((n_nodes - len(begin), n_nodes))
-        split = size > LEAF_SIZE
+        split = size > 1
+        axis, half = np.zeros(len(begin), np.int64), size // 2
+        if split.any():
+            axis[split], half[split], split_cost = _sah(ids, centroid, boxes, begin[split], size[split])
+            split[split] = (size[split] > LEAF_SIZE) | (split_cost < size[split])
         first.append(np.where(split, 0, begin))
         count.append(np.where(split, 0, size))
         child = np.full(len(begin), -1)
         child[split] = n_nodes + 2 * np.arange(split.sum())
         left.append(child)
         right.append(np.where(split, child + 1, -1))
-        b, s = begin[split], size[split]
-        half = s // 2
+        b, s, half = begin[split], size[split], half[split]
         if len(b):
-            _split(ids, centroid, right_side, b, s, half)
+            _split(ids, right_side, b, s, axis[split], half)
         begin = np.stack([b, b + half], 1).ravel()
         size = np.stack([half, s - half], 1).ravel()
         n_nodes += len(begin)
@@ -110,6 +124,60 @@ def build(tri_vertices: np.ndarray) -> Tree:
     return Tree(lo, hi, left, right, first, count, order, levels)
 
 
+def _sah(ids: np.ndarray, centroid: np.ndarray, boxes: np.ndarray, b: np.ndarray,
+         s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The binned surface area heuristic's split of each node [b, b + s) of sorted slots (s >= 2), all at
+    once: (axis, left triangles, cost). The axis is that of the centroids' largest extent; the node's list
+    sorted along it is cut into min(s, BINS) bins of equal counts, and a split lies between two bins. Its
+    cost, in steps of the walk (an inner node or a triangle test each), is 1 + (A_l n_l + A_r n_r) / A:
+    the node's own step, then each child's triangles weighted by the chance that a ray through the node's
+    box enters the child's (surface areas A). A bin's box is that of SAMPLES / BINS triangles evenly spread
+    over it (all of them in a node of up to SAMPLES). Near-equal costs go to the more even split (so that
+    equal triangles do not make a chain). `boxes`: (n, 6) the triangles' boxes as -lo, hi."""
+    n = len(b)
+    axes = np.arange(3)[:, None]
+    c_lo, c_hi = centroid[ids[:, b], axes], centroid[ids[:, b + s - 1], axes]   # (3, nodes): sorted lists' ends
+    axis = np.argmax(c_hi - c_lo, axis=0)
+    q, bins = np.minimum(s, SAMPLES), np.minimum(s, BINS)
+    sample_node = np.repeat(np.arange(n), q)
+    first_sample = np.cumsum(q) - q
+    i = np.arange(len(sample_node)) - first_sample[sample_node]
+    slot = axis[sample_node] * ids.shape[1] + b[sample_node] + i * s[sample_node] // q[sample_node]
+    box = np.take(boxes, np.take(ids, slot), axis=0)   # (samples, 6); np.take: faster than indexing
+    node = np.repeat(np.arange(n), bins)   # of each bin
+    node_bins = np.cumsum(bins) - bins
+    j = np.arange(len(node)) - node_bins[node]
+    binned = box if len(box) == len(node) else \
+        np.maximum.reduceat(box, first_sample[node] + q[node] * j // bins[node], axis=0)   # (bins, 6)
+    half, cost = np.empty(n, np.int64), np.empty(n)
+    for count in np.unique(bins):          # nodes of `count` bins: one (count, nodes, 6) array
+        sel = np.flatnonzero(bins == count)
+        x = binned[node_bins[sel] + np.arange(count)[:, None]]
+        prefix = np.maximum.accumulate(x, axis=0)
+        suffix = np.maximum.accumulate(x[::-1], axis=0)[::-1]
+        s_sel, q_sel = s[sel], q[sel]
+        n_left = (q_sel * np.arange(1, count)[:, None] // count) * s_sel // q_sel   # triangles in bins before k
+        c = n_left * _area(_extent(prefix[:-1])) + (s_sel - n_left) * _area(_extent(suffix[1:]))
+        c *= 1 + 1e-6 * np.abs(2 * n_left - s_sel) / s_sel
+        best = np.argmin(c, axis=0)
+        whole = _area(_extent(prefix[-1]))
+        half[sel] = n_left[best, np.arange(len(sel))]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cost[sel] = np.where(whole > 0, 1 + c[best, np.arange(len(sel))] / whole, np.inf)
+    return axis, half, cost
+
+
+def _extent(box: np.ndarray) -> np.ndarray:
+    """Extents (..., 3) of boxes (..., 6) held as -lo, hi, in float64 (their maxima were exact in float32)."""
+    return box[..., :3].astype(np.float64) + box[..., 3:]
+
+
+def _area(extent: np.ndarray) -> np.ndarray:
+    """Surface areas of boxes of extents (..., 3)."""
+    x, y, z = extent[..., 0], extent[..., 1], extent[..., 2]
+    return 2 * (x * y + y * z + z * x)
+
+
 def _argsort(key: np.ndarray, tie: np.ndarray) -> np.ndarray:
     """The tie values (unique uint32) of float32 keys sorted by (key, tie), in one sort of 64-bit words:
     the key's bits mapped to an order-preserving unsigned integer above the tie (faster than NumPy's
@@ -119,19 +187,15 @@ def _argsort(key: np.ndarray, tie: np.ndarray) -> np.ndarray:
     return (np.sort(bits << 32 | tie.astype(np.uint64)) & 0xFFFFFFFF).astype(np.int32)
 
 
-def _split(ids: np.ndarray, centroid: np.ndarray, right_side: np.ndarray, b: np.ndarray, s: np.ndarray,
+def _split(ids: np.ndarray, right_side: np.ndarray, b: np.ndarray, s: np.ndarray, axis: np.ndarray,
            half: np.ndarray) -> None:
     """Splits nodes [b, b + s) of sorted slots in place: in each, the first half[i] triangles of its list
-    along its longest centroid axis form the left child, and every axis's list is partitioned stably,
-    left child first."""
-    axes = np.arange(3)[:, None]
+    along axis[i] form the left child, and every axis's list is partitioned stably, left child first."""
     b, s, half = b.astype(np.int32), s.astype(np.int32), half.astype(np.int32)   # int32: less memory traffic
-    extent = centroid[ids[:, b + s - 1], axes] - centroid[ids[:, b], axes]   # (3, nodes)
-    axis = np.argmax(extent, axis=0)
     whole = s.sum() == ids.shape[1]          # the level's nodes cover every slot (no leaves yet)
     slots = np.arange(ids.shape[1], dtype=np.int32) if whole else _ranges(b, s).astype(np.int32)
     node = np.repeat(np.arange(len(b), dtype=np.int32), s)
-    right_side[ids[axis[node], slots]] = slots >= (b + half)[node]
+    right_side[np.take(ids, axis[node] * ids.shape[1] + slots)] = slots >= (b + half)[node]   # np.take: faster than indexing
     # A slot's destination, given `left`, the left-child triangles up to it (inclusive) counted from the
     # level's first slot: a left one goes to b - before - 1 + left, after the left ones before it in its
     # node; a right one to slot + half - (left - before), after its node's left half and the right ones
@@ -140,8 +204,8 @@ def _split(ids: np.ndarray, centroid: np.ndarray, right_side: np.ndarray, b: np.
     to_left = b[node] - before - 1
     gap = slots + half[node] + before - to_left   # to_right - to_left: dest = to_left + left + is_right * (gap - 2 left)
     for a in range(3):
-        moved = ids[a].copy() if whole else ids[a, slots]
-        is_right = right_side[moved]
+        moved = ids[a].copy() if whole else np.take(ids[a], slots)
+        is_right = np.take(right_side, moved)
         left = np.cumsum(~is_right, dtype=np.int32)
         ids[a, to_left + left + is_right * (gap - 2 * left)] = moved
 
@@ -257,97 +321,104 @@ class BVHKernel:
         and its link; (slope, offset): the ray's BoxGrid.ray_terms."""
         q0, q1 = self.grid.coords([x[4 * k + i] for i in range(3)])
         t0, t1 = dr.fma(q0, slope, offset), dr.fma(q1, slope, offset)
-        t_near = dr.max(dr.minimum(t0, t1))
-        t_far = dr.min(dr.maximum(t0, t1))
+        near, far = _min(t0, t1), _max(t0, t1)
+        t_near, t_far = _max(_max(near.x, near.y), near.z), _min(_min(far.x, far.y), far.z)
         return (t_near <= t_far) & (t_far >= 0) & (t_near <= t_max), t_near, x[4 * k + 3]
 
-    def _walk(self, o: Array3f, d: Array3f, active: Bool, t_max, visit_leaf, finished, payload: tuple,
-              count_steps: bool = False) -> tuple:
+    def _walk(self, o: Array3f, d: Array3f, active: Bool, t_max, visit_triangle, finished, payload: tuple,
+              count_work: bool = False) -> tuple:
         """Depth-first traversal, nearer child first, of the boxes that o + t d, 0 <= t <= t_max(payload),
-        enters: payload = visit_leaf(leaf word, *payload) at each such leaf; a lane stops at the end or
-        once finished(*payload). With count_steps (diagnostics only), the payload is followed by the
-        number of nodes each lane visited."""
+        enters: payload = visit_triangle(triangle slot, *payload) for each triangle of each such leaf; a lane
+        stops at the end or once finished(*payload). Each step a lane either tests both children of an inner
+        node or one triangle of a leaf. With count_work (diagnostics only), the payload is followed by the
+        number of inner nodes each lane visited and of triangles it tested."""
         (slope, offset), none, n = self.grid.ray_terms(o, d), UInt32(0xFFFFFFFF), len(payload)
-        counter = (UInt32(0),) if count_steps else ()
+        counter = (UInt32(0), UInt32(0)) if count_work else ()
         c = len(counter)
 
-        def cond(node, *rest):
-            return (node != none) & ~finished(*rest[c:c + n])
+        def cond(item, *rest):
+            return (item != none) & ~finished(*rest[c:c + n])
 
-        def body(node, *rest):
-            counted, payload, stack = tuple(k + 1 for k in rest[:c]), rest[c:c + n], rest[c + n:]
-            x = dr.gather(ArrayXu, self.nodes, node, shape=(8, dr.width(node)))
+        def body(item, *rest):
+            payload, stack = rest[c:c + n], rest[c + n:]
+            at_leaf = item >= LEAF_BIT          # else an inner node (`none` lanes are no longer in the loop)
+            inner = ~at_leaf
+            counted = (rest[0] + dr.select(inner, 1, 0), rest[1] + dr.select(at_leaf, 1, 0)) if c else ()
+            payload = dr.if_stmt((item, *payload), at_leaf,
+                                 lambda i, *p: visit_triangle((i & (LEAF_BIT - 1)) >> 3, *p), lambda i, *p: p)
+            x = dr.gather(ArrayXu, self.nodes, item, inner, shape=(8, dr.width(item)))
             t_end = t_max(*payload)
             (hit_a, t_a, link_a), (hit_b, t_b, link_b) = (self._child(x, k, slope, offset, t_end) for k in (0, 1))
-            leaf_a, leaf_b = hit_a & (link_a >= LEAF_BIT), hit_b & (link_b >= LEAF_BIT)
-            words = dr.select(leaf_a, link_a & (LEAF_BIT - 1), 0), dr.select(leaf_b, link_b & (LEAF_BIT - 1), 0)
-            payload = dr.if_stmt((*words, *payload), leaf_a | leaf_b,   # word 0: an empty leaf
-                                 lambda w0, w1, *p: visit_leaf(w1, *visit_leaf(w0, *p)), lambda w0, w1, *p: p)
-            inner_a, inner_b = hit_a & (link_a < LEAF_BIT), hit_b & (link_b < LEAF_BIT)
+            hit_a, hit_b = inner & hit_a, inner & hit_b
             a_first = t_a <= t_b
-            near = dr.select(inner_a & (~inner_b | a_first), link_a, link_b)
-            push, pop = inner_a & inner_b, ~(inner_a | inner_b)
+            near = dr.select(hit_a & (~hit_b | a_first), link_a, link_b)
+            more = at_leaf & ((item & 7) > 1)   # the leaf's next triangle: first + 1, count - 1
+            push, pop = hit_a & hit_b, ~(hit_a | hit_b | more)
             pushed = (dr.select(a_first, link_b, link_a), *stack[:-1])   # the far child on top
             popped = (*stack[1:], none)
-            node = dr.select(pop, stack[0], near)
+            item = dr.select(pop, stack[0], dr.select(more, item + 7, near))
             stack = tuple(dr.select(push, p, dr.select(pop, q, s)) for p, q, s in zip(pushed, popped, stack))
-            return (node, *counted, *payload, *stack)
+            return (item, *counted, *payload, *stack)
 
         start = dr.select(active, UInt32(0), none)
         state = (start, *counter, *payload, *(UInt32(none) for _ in range(self.stack_size)))
         out = dr.while_loop(state, cond, body)
         return (*out[1 + c:1 + c + n], *out[1:1 + c])
 
-    def _leaf(self, word, o, d, t_min, t_best, skip, target):
-        """The nearest hit among a leaf's triangles: (t, prim, b1, b2), t = inf if none."""
-        first, count = word >> 3, word & 7
-        t_hit, hit_prim, u_hit, v_hit = Float(INF), UInt32(0), Float(0), Float(0)
-        for k in range(LEAF_SIZE):
-            active = k < count
-            x = dr.gather(ArrayXf, self.tris, first + k, active, shape=(12, dr.width(first)))
-            prim = UInt32(dr.reinterpret_array(_UINT_JIT, x[3]))
-            active &= prim != skip
-            if target is not None:
-                active &= prim != target
-            t, b1, b2 = ray_triangle(o, d, Array3f(x[0], x[1], x[2]), Array3f(x[4], x[5], x[6]),
-                                               Array3f(x[8], x[9], x[10]), t_min, t_best)
-            closer = active & (t < t_hit)
-            t_hit, hit_prim = dr.select(closer, t, t_hit), dr.select(closer, prim, hit_prim)
-            u_hit, v_hit = dr.select(closer, b1, u_hit), dr.select(closer, b2, v_hit)
-        return t_hit, hit_prim, u_hit, v_hit
+    def _triangle(self, slot, o, d, t_min, t_max, skip, target):
+        """The triangle in `slot`: (t, prim, b1, b2), t = inf if o + t d misses it in (t_min, t_max) or it is
+        `skip` or `target`."""
+        x = dr.gather(ArrayXf, self.tris, slot, shape=(12, dr.width(slot)))
+        prim = UInt32(dr.reinterpret_array(_UINT_JIT, x[3]))
+        ok = prim != skip
+        if target is not None:
+            ok &= prim != target
+        t, b1, b2 = ray_triangle(o, d, Array3f(x[0], x[1], x[2]), Array3f(x[4], x[5], x[6]),
+                                 Array3f(x[8], x[9], x[10]), t_min, t_max)
+        return dr.select(ok, t, INF), prim, b1, b2
 
     def closest_hit(self, o: Array3f, d: Array3f, t_min, t_best: Float, prim: UInt32, b1: Float, b2: Float,
                     skip: UInt32):
         """Improves (t_best, prim, b1, b2) with the BVH's triangles."""
-        def visit_leaf(word, t_best, prim, b1, b2):
-            t, leaf_prim, u, v = self._leaf(word, o, d, t_min, t_best, skip, None)
+        def visit_triangle(slot, t_best, prim, b1, b2):
+            t, tri_prim, u, v = self._triangle(slot, o, d, t_min, t_best, skip, None)
             closer = t < t_best
-            return (dr.select(closer, t, t_best), dr.select(closer, leaf_prim, prim),
+            return (dr.select(closer, t, t_best), dr.select(closer, tri_prim, prim),
                     dr.select(closer, u, b1), dr.select(closer, v, b2))
 
-        return self._walk(o, d, Bool(True), lambda t_best, *_: t_best, visit_leaf, lambda *_: Bool(False),
+        return self._walk(o, d, Bool(True), lambda t_best, *_: t_best, visit_triangle, lambda *_: Bool(False),
                           (Float(t_best), UInt32(prim), Float(b1), Float(b2)))
 
     def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32,
                  active: Bool = True) -> Bool:
         """Whether a BVH triangle other than skip and target lies on o + t d, 0 < t < dist; False where
         not active (such lanes skip the traversal)."""
-        def visit_leaf(word, blocked):
-            return (blocked | (self._leaf(word, o, d, 0.0, dist, skip, target)[0] < dist),)
+        def visit_triangle(slot, blocked):
+            return (blocked | (self._triangle(slot, o, d, 0.0, dist, skip, target)[0] < dist),)
 
-        return self._walk(o, d, Bool(active), lambda _: dist, visit_leaf, lambda blocked: blocked,
+        return self._walk(o, d, Bool(active), lambda _: dist, visit_triangle, lambda blocked: blocked,
                           (Bool(False),))[0]
 
     def closest_hit_work(self, o: Array3f, d: Array3f) -> tuple[UInt32, UInt32]:
-        """Diagnostics: the nodes visited and the triangles tested by each ray's closest-hit traversal (the
-        same walk as closest_hit, counting)."""
-        def visit_leaf(word, t_best, tests):
-            t, _, _, _ = self._leaf(word, o, d, 0.0, t_best, UInt32(0xFFFFFFFF), None)
-            return dr.minimum(t, t_best), tests + (word & 7)
+        """Diagnostics: the inner nodes visited and the triangles tested by each ray's closest-hit traversal
+        (the same walk as closest_hit, counting)."""
+        def visit_triangle(slot, t_best):
+            return (dr.minimum(self._triangle(slot, o, d, 0.0, t_best, UInt32(0xFFFFFFFF), None)[0], t_best),)
 
-        _, tests, steps = self._walk(o, d, Bool(True), lambda t_best, _: t_best, visit_leaf,
-                                     lambda *_: Bool(False), (Float(INF), UInt32(0)), count_steps=True)
+        _, steps, tests = self._walk(o, d, Bool(True), lambda t_best: t_best, visit_triangle,
+                                     lambda *_: Bool(False), (Float(INF),), count_work=True)
         return steps, tests
+
+
+def _min(a, b):
+    """min(a, b) for operands that are never NaN, as one instruction (dr.minimum also orders NaNs and
+    signed zeros, in several)."""
+    return dr.select(a < b, a, b)
+
+
+def _max(a, b):
+    """max(a, b) for operands that are never NaN, as one instruction."""
+    return dr.select(a > b, a, b)
 
 
 def _aligned(a: np.ndarray, alignment: int = 64) -> np.ndarray:

@@ -22,7 +22,7 @@ import numpy as np
 
 from .bvh import LEAF_BIT, LEAF_SIZE, Layout, layout
 
-FORMAT = 1            # bump when Layout or the build changes
+FORMAT = 2            # bump when Layout or the build changes (2: SAH build, leaves of up to 4)
 IN_MEMORY = 4         # layouts kept in this process
 ENV = "TRACER_BVH_CACHE"
 OFF = ("off", "0", "no", "none", "")
