@@ -8,7 +8,7 @@ import tracer
 import tracer.geometry as geometry
 import drjit as dr
 
-from tracer.bvh import BINS, LEAF_BIT, LEAF_SIZE, BVHKernel, _aligned, build, depth_first
+from tracer.shapes.bvh import BINS, LEAF_BIT, LEAF_SIZE, BVHKernel, _aligned, build, depth_first
 from tracer.jit import NO_PRIM, Array3f, ArrayXu, Bool, Float, UInt32
 
 from .conftest import SCENES
@@ -210,7 +210,7 @@ def test_build_of_equal_triangles_stays_balanced():
 
 
 def test_the_disk_cache_folder(monkeypatch, tmp_path):
-    from tracer import bvh_cache
+    from tracer.shapes import bvh_cache
 
     monkeypatch.delenv("TRACER_BVH_CACHE", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
@@ -226,7 +226,7 @@ def test_the_disk_cache_folder(monkeypatch, tmp_path):
 
 
 def test_only_large_meshes_go_to_disk_by_default(monkeypatch, tmp_path):
-    from tracer import bvh_cache
+    from tracer.shapes import bvh_cache
 
     monkeypatch.setenv("TRACER_BVH_CACHE", str(tmp_path))
     monkeypatch.setattr(bvh_cache, "DISK_MIN_TRIANGLES", 200)
@@ -240,7 +240,7 @@ def test_only_large_meshes_go_to_disk_by_default(monkeypatch, tmp_path):
 
 
 def test_the_least_recently_used_files_are_evicted(monkeypatch, tmp_path):
-    from tracer import bvh_cache
+    from tracer.shapes import bvh_cache
 
     rng = np.random.default_rng(4)
     meshes = [rng.uniform(-1, 1, (300, 3, 3)) for _ in range(3)]
@@ -259,7 +259,7 @@ def test_the_least_recently_used_files_are_evicted(monkeypatch, tmp_path):
 
 
 def test_layout_cache_reuses_in_memory_and_on_disk(tmp_path):
-    from tracer import bvh_cache
+    from tracer.shapes import bvh_cache
 
     rng = np.random.default_rng(12)
     tris = rng.uniform(-1, 1, (300, 3, 3))
@@ -282,7 +282,7 @@ def test_layout_cache_reuses_in_memory_and_on_disk(tmp_path):
 
 @pytest.mark.parametrize("damage", ["truncate", "order", "link", "key"])
 def test_layout_cache_rebuilds_a_damaged_file(tmp_path, damage):
-    from tracer import bvh_cache
+    from tracer.shapes import bvh_cache
 
     tris = np.random.default_rng(13).uniform(-1, 1, (300, 3, 3))
     bvh_cache.clear_memory()

@@ -67,7 +67,7 @@ def render(scene: Scene | str | Path, estimator: str = "path", spp: int | None =
     `result.spp` says how many were rendered. Arguments out of their domain raise SettingsError and a
     render that cannot fit in memory PlanError, both before the first ray. `geometry`: a SceneGeometry of
     this same scene to reuse across renders (built here when None; a mesh's BVH is reused in any case,
-    tracer.bvh_cache)."""
+    tracer.shapes.bvh_cache)."""
     if isinstance(scene, (str, Path)):
         from .mitsuba_xml import load_scene
         scene = load_scene(scene)

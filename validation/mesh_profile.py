@@ -1,7 +1,7 @@
 """Where a mesh scene's ray time goes, for `validate bench`: the tracer's closest-hit and shadow-ray queries
 alone (no shading) on the same random rays as Mitsuba's (Embree's) `ray_intersect_preliminary` and
 `ray_test`, and the tracer's BVH work per ray (nodes visited, triangles tested; a counting copy of the
-traversal, tracer.bvh.BVHKernel.closest_hit_work).
+traversal, tracer.shapes.bvh.BVHKernel.closest_hit_work).
 
 The rays start uniformly inside the scene's bounding box, in uniformly random directions; shadow rays are
 the same rays cut to a length uniform in (0, half the box's diagonal). Each query is launched LAUNCHES
@@ -46,7 +46,7 @@ def profile_tracer(geometry) -> dict:
     """Rays per second of the tracer's queries and its BVH work per closest-hit ray."""
     from tracer.jit import NO_PRIM, Array3f, Float, UInt32
 
-    from tracer.bvh import layout
+    from tracer.shapes.bvh import layout
 
     points = geometry.meshes.tri_vertices.reshape(-1, 3)
     o, d, dist = random_rays(points.min(axis=0), points.max(axis=0))

@@ -1,5 +1,5 @@
 """Triangle meshes (Mitsuba's `obj`, `ply`, `serialized`): tested one by one when few, else through the BVH
-(tracer.bvh); interpolated shading normals and texture coordinates; area sampling."""
+(tracer.shapes.bvh); interpolated shading normals and texture coordinates; area sampling."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -10,8 +10,8 @@ import drjit as dr
 import numpy as np
 
 from .. import transform
-from ..bvh import BVHKernel
-from ..bvh_cache import cached_layout
+from .bvh import BVHKernel
+from .bvh_cache import cached_layout
 from ..meshes import MeshError, read_obj, read_ply, vertex_normals
 from ..serialized import read_serialized
 from ..jit import INF, Array3f, Bool, Float, UInt32, vec3

@@ -31,8 +31,8 @@ from functools import cached_property
 import drjit as dr
 import numpy as np
 
-from .shapes.triangle import ray_triangle
-from .jit import INF, PRECISION, Array3f, ArrayXf, ArrayXu, Bool, Float, UInt32, UInt64
+from .triangle import ray_triangle
+from ..jit import INF, PRECISION, Array3f, ArrayXf, ArrayXu, Bool, Float, UInt32, UInt64
 
 LEAF_SIZE = 4      # most triangles in a leaf (at most 7: a leaf's link holds the count in 3 bits)
 BINS = 16          # SAH candidate splits per node: between bins of equal triangle counts
@@ -271,7 +271,7 @@ class BoxGrid:
 
 @dataclass
 class Layout:
-    """The BVH as the kernel reads it, without the triangles' data (what tracer.bvh_cache stores)."""
+    """The BVH as the kernel reads it, without the triangles' data (what shapes.bvh_cache stores)."""
     nodes: np.ndarray      # (rows, 8) uint32: per row the two children's box words and links
     order: np.ndarray      # (triangles,) original triangle index of each leaf slot
     rows: np.ndarray       # (rows,) the tree node of each table row (for the tests)
@@ -301,7 +301,7 @@ def layout(tri_vertices: np.ndarray) -> Layout:
 
 class BVHKernel:
     """The BVH's inner nodes and triangles on the device, and their traversal; triangle ids are offset by
-    `prim_base`. `tables`: the triangles' Layout if already built (tracer.bvh_cache), else built here."""
+    `prim_base`. `tables`: the triangles' Layout if already built (shapes.bvh_cache), else built here."""
 
     def __init__(self, tri_vertices: np.ndarray, prim_base: int, tables: Layout | None = None):
         tables = layout(tri_vertices) if tables is None else tables
