@@ -94,8 +94,9 @@ def _child(job: dict) -> dict:
 def measure(job: dict, cold: bool = False) -> dict:
     """Runs `job` in a child process; adds the median seconds and the child's peak RSS in MB."""
     env = dict(os.environ)
-    if job.get("renderer") == "tracer":   # as the tracer command runs (tracer.cli.main)
-        env.setdefault("OPENBLAS_NUM_THREADS", "1")
+    if job.get("renderer") == "tracer":
+        env.setdefault("OPENBLAS_NUM_THREADS", "1")   # as the tracer command runs (tracer.cli.main)
+        env["TRACER_BVH_CACHE"] = "off"              # setup builds its BVH; the whole-process runs time the cache
     tmp = tempfile.TemporaryDirectory() if cold else None
     if tmp:
         env["HOME"] = tmp.name
