@@ -245,9 +245,10 @@ class SceneGeometry:
         kinds = [s.describe() for s in self.shape_sets if s.count]
         lines = [f"intersection: {', '.join(kinds) or 'no shapes'}"]
         lines.append(f"shading normals: {'interpolated on smooth meshes' if self.meshes.smooth else 'geometric only'}")
-        lines.append(f"materials: {', '.join(sorted({b.kind for b in self.materials.bsdfs}))}")
+        lines.append(f"materials: {', '.join(sorted({b.kind for b in self.materials.bsdfs})) or 'none'}")
         env = " and a constant environment" if self.environment is not None else (
             " and an environment map" if self.envmap is not None else "")
         points = f", {len(self.points)} point light(s)" if self.points else ""
+        points += f", {len(self.directionals)} directional light(s)" if self.directionals else ""
         lines.append(f"light sampling: {len(self.emitters)} area light(s){points}{env}")
         return lines
