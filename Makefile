@@ -20,7 +20,7 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PYTHON) -m pytest -q
 
-# The edit loop: everything but the statistical comparisons against Mitsuba (marked slow).
+# The edit loop: everything but the tests marked slow (statistical comparisons against Mitsuba, the browser, imports).
 test-fast: $(STAMP)
 	$(PYTHON) -m pytest -q -m "not slow"
 

@@ -72,6 +72,7 @@ def srgb8(v: float) -> int:
     return round(255 * (12.92 * v if v <= 0.0031308 else 1.055 * v ** (1 / 2.4) - 0.055))
 
 
+@pytest.mark.slow   # a browser start: `make test-browser` runs it alone
 def test_viewer_in_chromium(browser, tmp_path: Path):
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.actions.wheel_input import ScrollOrigin
