@@ -67,11 +67,12 @@ class SceneGeometry:
         self.environment = scene.environment
         self.envmap = EnvmapKernel(scene.envmap) if scene.envmap is not None else None
         self.has_environment = self.environment is not None or self.envmap is not None
+        self.delta_lights = scene.delta_lights
         self.points = scene.point_lights
         self.directionals = scene.directional_lights
         self.spots = any(light.spot is not None for light in self.points)
         # lights a shadow ray may be sent to, chosen uniformly: the area lights, point lights, the environment
-        self.n_lights = len(self.emitters) + len(self.points) + len(self.directionals) + self.has_environment
+        self.n_lights = len(self.emitters) + len(self.delta_lights) + self.has_environment
         self.has_infinite_lights = self.has_environment or bool(self.directionals)   # shadow rays leave the scene
         self.has_lights = self.n_lights > 0
         self.occluders = self._possible_occluders()
@@ -229,8 +230,7 @@ class SceneGeometry:
             shapes, (lo, _) = self._set_of(e)
             y, n, prim = shapes.sample(e, lo, u1, u2, self)
             samples.append(LightSample(y, n, vec3(e.radiance), Float(1.0 / (n_lights * e.area)), prim))
-        samples += [light.sample(n_lights, self.spots) for light in self.points]
-        samples += [light.sample(n_lights) for light in self.directionals]
+        samples += [light.sample(n_lights, self.spots) for light in self.delta_lights]
         if self.has_environment:
             d = self.envmap.sample(u1, u2) if self.envmap is not None else square_to_uniform_sphere(u1, u2)
             samples.append(LightSample(d, -d, self.environment_radiance(d), Float(self.environment_pdf(d)),

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .film import ReconstructionFilter
-from .lights import ConstantEnvironment, DirectionalLight, EnvironmentMap, PointLight
+from .lights import DELTA_KINDS, ConstantEnvironment, DirectionalLight, EnvironmentMap, PointLight
 from .materials import BSDF
 from .shapes import Cylinder, Mesh, Rectangle, Sphere, in_primitive_order
 
@@ -87,6 +87,11 @@ class Scene:
     @property
     def directional_lights(self) -> list[DirectionalLight]:
         return [x for x in self.lights if isinstance(x, DirectionalLight)]
+
+    @property
+    def delta_lights(self) -> list:
+        """Point, spot and directional lights, kind by kind in the order of tracer.lights.DELTA_KINDS."""
+        return [x for kind in DELTA_KINDS for x in self.lights if isinstance(x, kind)]
 
     @property
     def environment(self) -> tuple[float, float, float] | None:

@@ -22,8 +22,9 @@ class DirectionalLight:
     irradiance: tuple[float, float, float]
     name: str = ""
 
-    def sample(self, n_lights: int) -> LightSample:
-        """y: the direction towards it; n: the one it shines along; chosen with probability 1 / n_lights."""
+    def sample(self, n_lights: int, spots: bool = False) -> LightSample:
+        """y: the direction towards it; n: the one it shines along; chosen with probability 1 / n_lights (it
+        has no cone, whether or not the scene has spot lights)."""
         return LightSample(vec3(-self.direction), vec3(self.direction), vec3(self.irradiance),
                            Float(1.0 / n_lights), UInt32(DIRECTIONAL_LIGHT))
 
