@@ -8,7 +8,8 @@ import tracer
 import tracer.geometry as geometry
 import drjit as dr
 
-from tracer.shapes.bvh import BINS, LEAF_BIT, LEAF_SIZE, BVHKernel, _aligned, build, depth_first
+from tracer.shapes.bvh import (BINS, LEAF_BIT, LEAF_SIZE, WIDTH, BVHKernel, _aligned, build, depth_first,
+                               wide_children)
 from tracer.jit import NO_PRIM, Array3f, ArrayXu, Bool, Float, UInt32
 
 from .conftest import SCENES
@@ -63,23 +64,28 @@ def test_depth_first_order_puts_each_subtree_in_one_run():
 
 @pytest.mark.parametrize("n", [1, 2, 3, 500])
 def test_node_table_reaches_every_triangle_once(n):
-    """Walked on the host from the root row, the table's links reach each triangle exactly once, and each
-    inner row's links name rows of the children the tree gives it."""
+    """Walked on the host from the root row, the table's links reach each triangle exactly once, only
+    through full slots, and no leaf lies below more rows than the kernel's stack holds."""
     tris = np.random.default_rng(n).uniform(-1, 1, (n, 3, 3))
     kernel = BVHKernel(tris, prim_base=0)
-    table = np.asarray(kernel.nodes).reshape(-1, 8)
+    table = np.asarray(kernel.nodes).reshape(-1, 4 * WIDTH)
     assert kernel.rows[0] == 0   # the root comes first
-    reached, pending = [], [0]
+    reached, pending, deepest = [], [(kernel.root, 1)], 0
     while pending:
-        row = table[pending.pop()]
-        for link in row[3], row[7]:
-            if link >= LEAF_BIT:
+        item, rows = pending.pop()   # rows: on the path from the root, this one included
+        row = table[item >> WIDTH]
+        for k in range(WIDTH):
+            link = row[4 * k + 3]
+            if not item >> k & 1:
+                assert link == 0   # an empty slot
+            elif link >= LEAF_BIT:
                 first, count = (link - LEAF_BIT) >> 3, (link - LEAF_BIT) & 7
                 reached += range(first, first + count)
+                deepest = max(deepest, rows)
             else:
-                pending.append(link)
-    expected = sorted(list(range(n)) * (2 if build(tris).left[0] < 0 else 1))   # a lone leaf is both children of its root
-    assert sorted(reached) == expected
+                pending.append((link, rows + 1))
+    assert sorted(reached) == list(range(n))
+    assert deepest <= kernel.stack_size   # each row above a leaf holds at most one stack entry
 
 
 def _numpy_closest_hits(o, d, tris):
@@ -132,10 +138,15 @@ def test_decoded_node_boxes_contain_their_triangles(offset, extent):
     rng = np.random.default_rng(7)
     tris = offset + rng.uniform(0, 1, (3000, 3, 3)) * [1.0, 1.0, extent]
     kernel, tree = BVHKernel(tris, prim_base=0), build(tris)
-    words = dr.gather(ArrayXu, kernel.nodes, dr.arange(UInt32, len(kernel.rows)), shape=(8, len(kernel.rows)))
-    for k, child in enumerate((tree.left[kernel.rows], tree.right[kernel.rows])):
+    words = dr.gather(ArrayXu, kernel.nodes, dr.arange(UInt32, len(kernel.rows)),
+                      shape=(4 * WIDTH, len(kernel.rows)))
+    children = wide_children(tree, kernel.rows)
+    assert (children[:, [0, 2]] >= 0).all() and (children >= 0).sum() > 2.5 * len(children)   # wider than binary
+    for k in range(WIDTH):
         q = kernel.grid.coords([words[4 * k + i] for i in range(3)])   # unpacked as the kernel does
         lo, hi = (kernel.grid.decode(c.numpy().T.astype(np.int64)) for c in q)
+        full = children[:, k] >= 0
+        child, lo, hi = children[full, k], lo[full], hi[full]
         assert (lo <= tree.lo[child]).all() and (hi >= tree.hi[child]).all()
         slack = 3 * kernel.grid.step.astype(np.float64) + 2 * np.spacing(np.abs(tree.lo[child]).astype(lo.dtype))
         assert (tree.lo[child] - lo <= slack).all() and (hi - tree.hi[child] <= slack).all()
@@ -296,7 +307,7 @@ def test_layout_cache_rebuilds_a_damaged_file(tmp_path, damage):
         if damage == "order":
             arrays["order"][0] = arrays["order"][1]                   # no longer a permutation
         elif damage == "link":
-            arrays["nodes"][0, 3] = len(arrays["nodes"])              # a row past the table
+            arrays["nodes"][0, 3] = len(arrays["nodes"]) << WIDTH | 3    # a row past the table
         else:
             arrays["key"] = np.array("0" * 40)
         with open(path, "wb") as f:

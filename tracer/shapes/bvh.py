@@ -6,22 +6,28 @@ of SAH-based bounding volume hierarchies" (IEEE Symposium on Interactive Ray Tra
 each node's triangles are cut across the axis of their centroids' largest extent, between BINS bins of
 equal counts, where the expected cost of a ray's walk through the children is least, and a node of up to
 LEAF_SIZE triangles stays a leaf where that is cheaper than splitting it. All the nodes of a level are
-split at once, vectorised with NumPy. The kernel stores each inner node as the boxes of its two children,
-so that one step tests both, and walks the tree depth first, nearer child first, with a per-lane stack of
-the far children still to visit: the shrinking closest hit then culls the far boxes. The stack lives in
-registers, one loop variable per tree level (a push shifts them down, a pop up), since Dr.Jit 1.5's local
-memory (dr.alloc_local) lost pushed entries on the LLVM backend. Leaves go on the stack like inner nodes:
-each step of the loop a lane either tests the two children of an inner node or one triangle of a leaf, the
-triangle test in a branch that a packet of lanes skips when none of them is at a leaf. (Testing a node's
-child leaves whole within its step cost a packet every triangle test of any lane's leaves in most steps.)
+split at once, vectorised with NumPy.
 
-An inner node is eight 32-bit words (32 bytes), gathered in one packet load: per child, its box's corners
-as 16-bit coordinates on a grid over the root box, rounded outwards by a further grid step (a margin far
-above the slab test's rounding; the test turns each coordinate into a ray parameter with one fma), and a
-link: the child's node index, or for a leaf its first triangle * 8 + count with the top bit set. A
-triangle is twelve values: v0, its primitive id, e1, 0, e2, 0 (the id stored as the bits of a float).
-Both tables start on a cache line: from memory it finds unaligned, Dr.Jit gathers value by value instead
-of in packets.
+The kernel walks a 4-wide tree (as Embree's and pbrt's wide BVHs, collapsed from the binary one): a row
+holds the boxes of an inner node's grandchildren, or of a child that is a leaf, so its children are 2 to
+4 and the tree half as deep. It walks it depth first, nearest child first: each step a lane either tests
+the boxes of a row's child slots still to visit or one triangle of a leaf (the triangle test in a branch
+that a packet of lanes skips when none of them is at a leaf; testing a node's child leaves whole within
+its step cost a packet every triangle test of any lane's leaves in most steps). From a row it goes on to
+the nearest child whose box it enters; if it entered one other, it pushes that child, and if several, it
+pushes the row back with those slots left in its link's mask, to be tested again, against the then
+closest hit, when popped. So each row has at most one entry on the per-lane stack: its size is the wide
+tree's depth. The shrinking closest hit culls the far boxes. The stack lives in registers, one loop
+variable per level (a push shifts them down, a pop up), since Dr.Jit 1.5's local memory
+(dr.alloc_local) lost pushed entries on the LLVM backend.
+
+A row is sixteen 32-bit words (64 bytes, one cache line), gathered in one packet load: per child slot,
+its box's corners as 16-bit coordinates on a grid over the root box, rounded outwards by a further grid
+step (a margin far above the slab test's rounding; the test turns each coordinate into a ray parameter
+with one fma), and a link: a row's index * 16 + the mask of its full slots, or for a leaf its first
+triangle * 8 + count with the top bit set; an empty slot is all zeros. A triangle is twelve values: v0,
+its primitive id, e1, 0, e2, 0 (the id stored as the bits of a float). Both tables start on a cache
+line: from memory it finds unaligned, Dr.Jit gathers value by value instead of in packets.
 """
 from __future__ import annotations
 
@@ -39,6 +45,8 @@ BINS = 16          # SAH candidate splits per node: between bins of equal triang
 SAMPLES = 256      # triangles whose boxes stand for a node's bins (all of a smaller node's)
 GRID = 0xFFFF          # largest grid coordinate of a node's box corner
 LEAF_BIT = 1 << 31     # marks a leaf's link word
+WIDTH = 4              # children per node of the kernel's table
+MASK = (1 << WIDTH) - 1    # an inner link's low bits: the row's child slots still to visit
 _FLOAT, _UINT = (np.float64, np.uint64) if PRECISION == "double" else (np.float32, np.uint32)
 _UINT_JIT = UInt64 if PRECISION == "double" else UInt32
 
@@ -272,31 +280,53 @@ class BoxGrid:
 @dataclass
 class Layout:
     """The BVH as the kernel reads it, without the triangles' data (what shapes.bvh_cache stores)."""
-    nodes: np.ndarray      # (rows, 8) uint32: per row the two children's box words and links
+    nodes: np.ndarray      # (rows, 16) uint32: per row its four child slots' box words and links
     order: np.ndarray      # (triangles,) original triangle index of each leaf slot
     rows: np.ndarray       # (rows,) the tree node of each table row (for the tests)
     root: np.ndarray       # (2, 3) float64 root box, from which the BoxGrid is made
-    stack_size: int        # tree levels: one pending far child per level at most
+    stack_size: int        # 4-wide levels: one pending row per level at most
+
+
+def wide_children(tree: Tree, node: np.ndarray) -> np.ndarray:
+    """(len(node), WIDTH) the tree nodes that are the 4-wide children of inner nodes `node`: each binary
+    child's own two children if it is inner, else the child itself (a leaf) and -1 (an empty slot)."""
+    out = np.full((len(node), WIDTH), -1, np.int64)
+    for slot, child in ((0, tree.left[node]), (2, tree.right[node])):
+        inner = tree.inner[child]
+        out[:, slot] = np.where(inner, tree.left[child], child)
+        out[:, slot + 1] = np.where(inner, tree.right[child], -1)
+    return out
 
 
 def layout(tri_vertices: np.ndarray) -> Layout:
-    """Builds the tree over (n, 3, 3) triangle vertices and encodes its node table."""
+    """Builds the tree over (n, 3, 3) triangle vertices and encodes its 4-wide node table: the rows are
+    the tree's inner nodes at even depths (the root's, its grandchildren's...), in depth-first order."""
     tree = build(tri_vertices)
     grid = BoxGrid(tree.lo[0], tree.hi[0])
     q_lo, q_hi = grid.quantize(tree.lo, tree.hi)
     boxes = np.stack([q_lo[:, 0] | q_lo[:, 1] << 16, q_lo[:, 2] | q_hi[:, 0] << 16,
                       q_hi[:, 1] | q_hi[:, 2] << 16], 1).astype(np.uint32)
-    inner = np.flatnonzero(tree.inner)
-    inner = inner[np.argsort(depth_first(tree)[inner])]
+    depth = np.zeros(len(tree.left), np.int64)
+    for level, (begin, end) in enumerate(tree.levels):
+        depth[begin:end] = level
+    wide = np.flatnonzero(tree.inner & (depth % 2 == 0))
+    wide = wide[np.argsort(depth_first(tree)[wide])]
+    if len(wide):
+        children = wide_children(tree, wide)
+    else:                # a single leaf: a root row with it as its only child
+        wide, children = np.array([0]), np.array([[0, -1, -1, -1]])
+    full = children >= 0
+    mask = (full << np.arange(WIDTH)).sum(1)
     index = np.zeros(len(tree.left), np.int64)
-    index[inner] = np.arange(len(inner))
+    index[wide] = np.arange(len(wide)) * (MASK + 1) + mask     # a row's link: its index and its full slots
     link = np.where(tree.inner, index, LEAF_BIT | (tree.first * 8 + tree.count))
-    if not len(inner):   # a single leaf: a root with it as both children
-        inner, tree.left[0], tree.right[0] = np.array([0]), 0, 0
-    nodes = np.empty((len(inner), 8), np.uint32)
-    for column, child in ((0, tree.left[inner]), (4, tree.right[inner])):
-        nodes[:, column:column + 3], nodes[:, column + 3] = boxes[child], link[child]
-    return Layout(nodes, tree.order, inner, np.array([tree.lo[0], tree.hi[0]], np.float64), len(tree.levels))
+    nodes = np.zeros((len(wide), 4 * WIDTH), np.uint32)
+    for k in range(WIDTH):
+        child = children[:, k]
+        nodes[:, 4 * k:4 * k + 3] = np.where(full[:, k, None], boxes[child], 0)
+        nodes[:, 4 * k + 3] = np.where(full[:, k], link[child], 0)
+    stack_size = max(1, len(tree.levels) // 2)   # a leaf at depth d has ceil(d / 2) rows above it
+    return Layout(nodes, tree.order, wide, np.array([tree.lo[0], tree.hi[0]], np.float64), stack_size)
 
 
 class BVHKernel:
@@ -308,6 +338,7 @@ class BVHKernel:
         self.grid = BoxGrid(*tables.root)
         self.rows = tables.rows
         self.nodes = UInt32(_aligned(tables.nodes))
+        self.root = int((tables.nodes[0, 3::4] != 0) @ (1 << np.arange(WIDTH)))   # the root row's link (full slots: links > 0)
         self.stack_size = tables.stack_size
         v = tri_vertices[tables.order]
         tris = np.zeros((len(v), 12), _FLOAT)
@@ -317,8 +348,8 @@ class BVHKernel:
 
     def _child(self, x: ArrayXu, k: int, slope: Array3f, offset: Array3f,
                t_max: Float) -> tuple[Bool, Float, UInt32]:
-        """Child k (0 or 1) of a node's words x: whether the ray segment [0, t_max] enters its box, where,
-        and its link; (slope, offset): the ray's BoxGrid.ray_terms."""
+        """Child slot k of a row's words x: whether the ray segment [0, t_max] enters its box, where, and
+        its link; (slope, offset): the ray's BoxGrid.ray_terms."""
         q0, q1 = self.grid.coords([x[4 * k + i] for i in range(3)])
         t0, t1 = dr.fma(q0, slope, offset), dr.fma(q1, slope, offset)
         near, far = _min(t0, t1), _max(t0, t1)
@@ -327,11 +358,13 @@ class BVHKernel:
 
     def _walk(self, o: Array3f, d: Array3f, active: Bool, t_max, visit_triangle, finished, payload: tuple,
               count_work: bool = False) -> tuple:
-        """Depth-first traversal, nearer child first, of the boxes that o + t d, 0 <= t <= t_max(payload),
+        """Depth-first traversal, nearest child first, of the boxes that o + t d, 0 <= t <= t_max(payload),
         enters: payload = visit_triangle(triangle slot, *payload) for each triangle of each such leaf; a lane
-        stops at the end or once finished(*payload). Each step a lane either tests both children of an inner
-        node or one triangle of a leaf. With count_work (diagnostics only), the payload is followed by the
-        number of inner nodes each lane visited and of triangles it tested."""
+        stops at the end or once finished(*payload). Each step a lane either tests the boxes of a row's
+        child slots still to visit (its item's mask) or one triangle of a leaf. From a row it goes to the
+        nearest child it enters; it pushes the other one it enters, or, if several, the row back with those
+        slots (tested again, against the then closest hit, when popped). With count_work (diagnostics only),
+        the payload is followed by the number of row steps each lane took and of triangles it tested."""
         (slope, offset), none, n = self.grid.ray_terms(o, d), UInt32(0xFFFFFFFF), len(payload)
         counter = (UInt32(0), UInt32(0)) if count_work else ()
         c = len(counter)
@@ -341,26 +374,33 @@ class BVHKernel:
 
         def body(item, *rest):
             payload, stack = rest[c:c + n], rest[c + n:]
-            at_leaf = item >= LEAF_BIT          # else an inner node (`none` lanes are no longer in the loop)
+            at_leaf = item >= LEAF_BIT          # else a row (`none` lanes are no longer in the loop)
             inner = ~at_leaf
             counted = (rest[0] + dr.select(inner, 1, 0), rest[1] + dr.select(at_leaf, 1, 0)) if c else ()
             payload = dr.if_stmt((item, *payload), at_leaf,
                                  lambda i, *p: visit_triangle((i & (LEAF_BIT - 1)) >> 3, *p), lambda i, *p: p)
-            x = dr.gather(ArrayXu, self.nodes, item, inner, shape=(8, dr.width(item)))
+            x = dr.gather(ArrayXu, self.nodes, item >> WIDTH, inner, shape=(4 * WIDTH, dr.width(item)))
             t_end = t_max(*payload)
-            (hit_a, t_a, link_a), (hit_b, t_b, link_b) = (self._child(x, k, slope, offset, t_end) for k in (0, 1))
-            hit_a, hit_b = inner & hit_a, inner & hit_b
-            a_first = t_a <= t_b
-            near = dr.select(hit_a & (~hit_b | a_first), link_a, link_b)
+            t_best, near, other, near_bit, hits = Float(INF), UInt32(0), UInt32(0), UInt32(0), UInt32(0)
+            for k in range(WIDTH):   # `other`: with two slots entered, the farther one's link
+                hit, t, link = self._child(x, k, slope, offset, t_end)
+                hit &= inner & ((item & (1 << k)) != 0)
+                hits |= dr.select(hit, 1 << k, 0)
+                closer = hit & (t < t_best)
+                other = dr.select(closer, near, dr.select(hit, link, other))
+                t_best, near, near_bit = (dr.select(closer, t, t_best), dr.select(closer, link, near),
+                                          dr.select(closer, 1 << k, near_bit))
+            rest_bits = hits & ~near_bit
             more = at_leaf & ((item & 7) > 1)   # the leaf's next triangle: first + 1, count - 1
-            push, pop = hit_a & hit_b, ~(hit_a | hit_b | more)
-            pushed = (dr.select(a_first, link_b, link_a), *stack[:-1])   # the far child on top
+            push, pop = rest_bits != 0, ~((hits != 0) | more)
+            one = (rest_bits & (rest_bits - 1)) == 0   # one other slot entered: pushed itself, else the row
+            pushed = (dr.select(one, other, (item & (0xFFFFFFFF ^ MASK)) | rest_bits), *stack[:-1])
             popped = (*stack[1:], none)
             item = dr.select(pop, stack[0], dr.select(more, item + 7, near))
             stack = tuple(dr.select(push, p, dr.select(pop, q, s)) for p, q, s in zip(pushed, popped, stack))
             return (item, *counted, *payload, *stack)
 
-        start = dr.select(active, UInt32(0), none)
+        start = dr.select(active, UInt32(self.root), none)
         state = (start, *counter, *payload, *(UInt32(none) for _ in range(self.stack_size)))
         out = dr.while_loop(state, cond, body)
         return (*out[1 + c:1 + c + n], *out[1:1 + c])
@@ -400,8 +440,8 @@ class BVHKernel:
                           (Bool(False),))[0]
 
     def closest_hit_work(self, o: Array3f, d: Array3f) -> tuple[UInt32, UInt32]:
-        """Diagnostics: the inner nodes visited and the triangles tested by each ray's closest-hit traversal
-        (the same walk as closest_hit, counting)."""
+        """Diagnostics: the row steps (a row popped back counts again) and the triangles tested by each ray's
+        closest-hit traversal (the same walk as closest_hit, counting)."""
         def visit_triangle(slot, t_best):
             return (dr.minimum(self._triangle(slot, o, d, 0.0, t_best, UInt32(0xFFFFFFFF), None)[0], t_best),)
 

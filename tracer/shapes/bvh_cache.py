@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .bvh import LEAF_BIT, LEAF_SIZE, Layout, layout
+from .bvh import LEAF_BIT, LEAF_SIZE, WIDTH, Layout, layout
 
-FORMAT = 2            # bump when Layout or the build changes (2: SAH build, leaves of up to 4)
+FORMAT = 3            # bump when Layout or the build changes (2: SAH build, leaves of up to 4; 3: 4-wide rows)
 IN_MEMORY = 4         # layouts kept in this process
 ENV = "TRACER_BVH_CACHE"
 OFF = ("off", "0", "no", "none", "")
@@ -124,13 +124,13 @@ def _load(path: Path, k: str, triangles: int) -> Layout | None:
             stack_size = int(f["stack_size"])
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):   # missing, truncated, not an npz
         return None
-    ok = (nodes.dtype == np.uint32 and nodes.ndim == 2 and nodes.shape[1] == 8 and rows.shape == (len(nodes),)
+    ok = (nodes.dtype == np.uint32 and nodes.ndim == 2 and nodes.shape[1] == 4 * WIDTH and rows.shape == (len(nodes),)
           and root.shape == (2, 3) and np.isfinite(root).all() and 0 < stack_size < 64
           and order.shape == (triangles,) and order.dtype.kind == "i" and triangles > 0
           and order.min() >= 0 and order.max() < triangles and (np.bincount(order, minlength=triangles) == 1).all())
     if ok:   # every link names a node row, or a leaf within the triangles
-        link = nodes[:, [3, 7]].astype(np.int64)
+        link = nodes[:, 3::4].astype(np.int64)
         leaf = link >= LEAF_BIT
         word = link & (LEAF_BIT - 1)
-        ok = bool(np.all(np.where(leaf, (word >> 3) + (word & 7) <= triangles, link < len(nodes))))
+        ok = bool(np.all(np.where(leaf, (word >> 3) + (word & 7) <= triangles, link >> WIDTH < len(nodes))))
     return Layout(nodes, order, rows, root, stack_size) if ok else None
