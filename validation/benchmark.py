@@ -561,11 +561,11 @@ def mesh_markdown(rows: dict) -> list[str]:
         "| shadow queries alone [rays/s] | " + cells(rate("shadow_seconds"), rate("shadow_seconds")) + " |",
         "| random rays that hit | " + cells(lambda x: f"{x['profile']['hit_fraction']:.2f}",
                                             lambda x: f"{x['profile']['hit_fraction']:.2f}") + " |",
-        "| nodes visited per closest-hit ray (mean, p90) | "
+        "| BVH node rows (4-wide) visited per closest-hit ray, revisits included (mean, p90) | "
         + cells(lambda x: f"{x['profile']['steps_mean']:.0f}, {x['profile']['steps_p90']:.0f}", None) + " |",
         "| triangles tested per closest-hit ray (mean, p90) | "
         + cells(lambda x: f"{x['profile']['tests_mean']:.0f}, {x['profile']['tests_p90']:.0f}", None) + " |",
-        "| BVH inner nodes, depth | " + cells(lambda x: f"{x['profile']['bvh_rows']:,}, {x['profile']['bvh_depth']}", None) + " |",
+        "| BVH node rows (4-wide), stack entries per lane | " + cells(lambda x: f"{x['profile']['bvh_rows']:,}, {x['profile']['bvh_depth']}", None) + " |",
         "| render: rays traced per second | " + cells(lambda x: f"{x['rays'] / x['median'] / 1e6:.1f} M", None) + " |",
         ""]
     return lines

@@ -1,6 +1,6 @@
 """Where a mesh scene's ray time goes, for `validate bench`: the tracer's closest-hit and shadow-ray queries
 alone (no shading) on the same random rays as Mitsuba's (Embree's) `ray_intersect_preliminary` and
-`ray_test`, and the tracer's BVH work per ray (nodes visited, triangles tested; a counting copy of the
+`ray_test`, and the tracer's BVH work per ray (4-wide node rows visited, triangles tested; a counting copy of the
 traversal, tracer.shapes.bvh.BVHKernel.closest_hit_work).
 
 The rays start uniformly inside the scene's bounding box, in uniformly random directions; shadow rays are
