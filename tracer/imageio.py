@@ -112,29 +112,29 @@ def read_exr_header(path: str | Path) -> dict:
         return dict(f.header())
 
 
-def read_exr(path: str | Path) -> np.ndarray:
+def _rgb_pixels(path: str | Path) -> np.ndarray:
+    """The RGB channels of an OpenEXR file's first part as stored (an alpha channel is dropped, as Mitsuba's
+    conversion to RGB does)."""
     with OpenEXR.File(str(path)) as f:
-        channels = f.channels()
-        if "RGB" in channels:
-            return np.asarray(channels["RGB"].pixels, dtype=np.float32)
-        return np.stack([np.asarray(channels[c].pixels, np.float32) for c in "RGB"], axis=-1)
+        channels = f.parts[0].channels
+        if "RGB" in channels or "RGBA" in channels:
+            return np.asarray(channels.get("RGB", channels.get("RGBA")).pixels)[..., :3]
+        if all(c in channels for c in "RGB"):
+            return np.stack([np.asarray(channels[c].pixels) for c in "RGB"], axis=-1)
+        raise ImageError(f"{path}: no R, G, B channels (has {', '.join(channels)})")
+
+
+def read_exr(path: str | Path) -> np.ndarray:
+    """An image the tracer or a compared renderer wrote, as (H, W, 3) float32."""
+    return _rgb_pixels(path).astype(np.float32)
 
 
 def read_exr_rgb(path: Path) -> np.ndarray:
-    """An input image's RGB channels (an environment map, a texture) from an OpenEXR file as (H, W, 3) float32 (an alpha channel is dropped, as Mitsuba's
-    conversion to RGB does)."""
+    """An input image (an environment map, a texture) as (H, W, 3) float32: readable, finite, non-negative."""
     try:
-        with OpenEXR.File(str(path)) as f:
-            channels = f.parts[0].channels
-            if "RGB" in channels or "RGBA" in channels:
-                pixels = np.asarray(channels.get("RGB", channels.get("RGBA")).pixels)[..., :3]
-            elif all(c in channels for c in "RGB"):
-                pixels = np.stack([np.asarray(channels[c].pixels) for c in "RGB"], axis=-1)
-            else:
-                raise ImageError(f"{path}: no R, G, B channels (has {', '.join(channels)})")
+        image = _rgb_pixels(path).astype(np.float32)
     except (OSError, RuntimeError) as e:
         raise ImageError(f"{path}: not a readable OpenEXR image ({e})") from None
-    image = pixels.astype(np.float32)
     if not np.all(np.isfinite(image)) or np.any(image < 0):
         raise ImageError(f"{path}: pixels must be finite and non-negative")
     return image
