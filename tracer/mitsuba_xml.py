@@ -26,6 +26,7 @@ from .materials import PLUGINS as BSDF_PLUGINS
 from .scene import Camera, Scene, SceneError
 from .shapes import PLUGINS as SHAPE_PLUGINS
 from .shapes.base import ShapeArgs
+from .spectra import rgb
 
 SUPPORTED = {
     "integrator": ("path",),
@@ -699,8 +700,8 @@ def _area_light(ctx: _Context, node: Node) -> tuple[float, float, float]:
     props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
     props.finish()
     if np.any(value < 0):
-        raise ctx.error(node, f"radiance must be non-negative, got {tuple(float(x) for x in value)}")
-    return tuple(float(x) for x in value)
+        raise ctx.error(node, f"radiance must be non-negative, got {rgb(value)}")
+    return rgb(value)
 
 
 def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:

@@ -24,5 +24,5 @@ def from_xml(ctx, props, node) -> ConstantEnvironment:
     props.ignore("to_world")              # a uniform environment looks the same however it is turned
     props.finish()
     if np.any(value < 0):
-        raise ctx.error(node, f"radiance must be non-negative, got {tuple(float(x) for x in value)}")
+        raise ctx.error(node, f"radiance must be non-negative, got {rgb(value)}")
     return ConstantEnvironment(rgb(value), node.attrib.get("id", f"constant@{node.line}"))

@@ -3,6 +3,7 @@ import numpy as np
 
 from ..jit import Array3f
 from ..sampling import INV_PI
+from ..spectra import rgb
 from .bsdf import BSDF
 from .reading import check_unit_interval
 
@@ -22,7 +23,7 @@ def from_xml(ctx, props, node) -> BSDF:
     if not isinstance(rho, np.ndarray):
         return BSDF("diffuse", (0.0, 0.0, 0.0), texture=rho)
     check_unit_interval(ctx, node, "diffuse reflectance", rho)
-    return BSDF("diffuse", tuple(float(x) for x in rho))
+    return BSDF("diffuse", rgb(rho))
 
 
 def _twosided(ctx, props, node) -> BSDF:
