@@ -90,7 +90,8 @@ class SceneGeometry:
         for e in self.emitters:
             lo, hi = self.prim_range(e)
             radiance[lo:hi] = e.radiance
-            light_pdf[lo:hi] = 1.0 / (self.n_lights * e.area) if e.area > 0 else 0.0
+            area = e.area
+            light_pdf[lo:hi] = 1.0 / (self.n_lights * area) if area > 0 else 0.0
         self.prim_normal = Float(normals.ravel())
         self.prim_material = UInt32(material)
         self.prim_radiance = Float(radiance.ravel())

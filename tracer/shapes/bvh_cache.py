@@ -87,16 +87,16 @@ def _touch(path: Path) -> None:
 def _evict(folder: Path, capacity: int) -> None:
     """Removes the least recently used BVH files until the folder holds at most `capacity` bytes."""
     try:
-        files = [(f.stat().st_mtime, f.stat().st_size, f) for f in folder.glob("*.npz")]
+        files = [(f, f.stat()) for f in folder.glob("*.npz")]
     except OSError:
         return
-    total = sum(size for _, size, _ in files)
-    for _, size, f in sorted(files, key=lambda x: x[0]):
+    total = sum(st.st_size for _, st in files)
+    for f, st in sorted(files, key=lambda x: x[1].st_mtime):
         if total <= capacity:
             break
         try:
             f.unlink()
-            total -= size
+            total -= st.st_size
         except OSError:
             pass
 

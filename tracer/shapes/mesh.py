@@ -124,11 +124,9 @@ class MeshSet(ShapeSet):
         n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
         return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
-    def face_normals(self) -> np.ndarray:
+    def normals(self) -> np.ndarray:
         """(triangles, 3) unit geometric normals (right-handed in the corners' order)."""
         return self._face_normals
-
-    normals = face_normals
 
     @cached_property
     def _corners(self) -> np.ndarray:
@@ -142,7 +140,7 @@ class MeshSet(ShapeSet):
 
     def _corner_normals(self) -> np.ndarray:
         """(triangles, 3, 3) shading normals at each triangle's corners (its face normal on flat meshes)."""
-        out, flat = np.zeros((max(self.count, 1), 3, 3)), self.face_normals()
+        out, flat = np.zeros((max(self.count, 1), 3, 3)), self._face_normals
         for m, lo, n in self.shape_primitives():
             tri = slice(lo - self.base, lo - self.base + n)
             out[tri] = m.normals[m.faces] if m.normals is not None else flat[tri][:, None, :]
@@ -165,7 +163,7 @@ class MeshSet(ShapeSet):
     def culling_planes(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
         if self.bvh is not None:   # BVH triangles are all tested; only the unrolled ones are worth culling
             return []
-        return [(self.base + j, v[0], n) for j, (v, n) in enumerate(zip(self.tri_vertices, self.face_normals()))]
+        return [(self.base + j, v[0], n) for j, (v, n) in enumerate(zip(self.tri_vertices, self._face_normals))]
 
     def sides(self, p0: np.ndarray, n: np.ndarray) -> np.ndarray:
         return (self._corners - p0) @ n
