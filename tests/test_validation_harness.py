@@ -80,16 +80,22 @@ def test_cache_round_trip_and_damage_detection(tmp_path):
     assert list(tmp_path.glob(".*")) == []           # no temporary file left behind
 
 
-def test_sweep_resumes_and_skips_done_runs(tmp_path, monkeypatch):
+def _record_runs(tmp_path, monkeypatch) -> list:
+    """Replaces the sweep's renders by rows that agree; returns the list the run keys are appended to."""
     calls = []
 
     def fake_execute(scene_file, spec, ref):
         calls.append(spec.key)
-        row = {f: 0 for f in sweep.FIELDS} | {"key": spec.key, "test": "pass", "rejected": 0, "min_p": 0.5}
+        row = {f: 0 for f in sweep.FIELDS} | {"key": spec.key, "test": "agree", "rejected": 0, "min_p": 0.5}
         return row, np.zeros((4, 4, 3), np.float32)
 
     monkeypatch.setattr(sweep, "execute", fake_execute)
     monkeypatch.setattr(sweep, "IMAGES", tmp_path / "images")
+    return calls
+
+
+def test_sweep_resumes_and_skips_done_runs(tmp_path, monkeypatch):
+    calls = _record_runs(tmp_path, monkeypatch)
     specs = [sweep.RunSpec("path", 2, s, 8) for s in (1, 2, 4)]
     results = tmp_path / "runs.csv"
     sweep.sweep(SCENES / "cornell_box.xml", specs[:2], lambda d, s: None, results)
@@ -111,15 +117,7 @@ def test_cli_errors_are_one_line(capsys):
 
 def test_sweep_renders_again_when_the_scene_changes(tmp_path, monkeypatch):
     """Runs are keyed by the scene's content: an edited light is rendered again, not read from the CSV."""
-    calls = []
-
-    def fake_execute(scene_file, spec, ref):
-        calls.append(spec.key)
-        row = {f: 0 for f in sweep.FIELDS} | {"key": spec.key, "test": "agree", "rejected": 0, "min_p": 0.5}
-        return row, np.zeros((4, 4, 3), np.float32)
-
-    monkeypatch.setattr(sweep, "execute", fake_execute)
-    monkeypatch.setattr(sweep, "IMAGES", tmp_path / "images")
+    calls = _record_runs(tmp_path, monkeypatch)
     scene = tmp_path / "cornell_box.xml"
     shutil.copy(SCENES / "cornell_box.xml", scene)
     shutil.copytree(SCENES / "meshes", tmp_path / "meshes")
