@@ -224,8 +224,8 @@ def _render(args) -> int:
     rfilter = check_rfilter(args.filter if args.filter else scene.camera.rfilter)
     name, spp, seed, max_depth = check_settings(scene, args.estimator, spp, args.seed, max_depth)
     estimator = make_estimator(name, max_depth, args.direct, args.indirect, args.hemisphere)
-    cam = scene.camera  # the plan counts every image the outputs hold: the AOVs, the noisy image, OIDN's copies
-    plan = make_plan(cam.width, cam.height, spp, estimator, Film.border_of(rfilter), args.time_limit is not None,
+    # the plan counts every image the outputs hold: the AOVs, the noisy image, OIDN's copies
+    plan = make_plan(scene, spp, estimator, Film.border_of(rfilter), args.time_limit is not None,
                      images=2 + 2 * (args.aovs or args.denoise) + 3 * args.denoise)
     paths = output_paths(args.scene, args.output, args.no_png)
     if args.adaptive:

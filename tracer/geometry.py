@@ -7,6 +7,7 @@ kind, a smooth mesh or a second light the scene lacks adds no instruction.
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import drjit as dr
@@ -54,6 +55,7 @@ class SceneGeometry:
 
     def __init__(self, scene: Scene, bvh_threshold: int = BVH_THRESHOLD, material_kinds: set[int] | None = None):
         self.scene = scene
+        self.batch = False                     # BVH walks over rays in memory (see `batched`)
         self.shape_sets, base = [], 0          # one per kind, in primitive order
         for cls in SETS:
             options = {"bvh_threshold": bvh_threshold} if cls is MeshSet else {}
@@ -136,6 +138,17 @@ class SceneGeometry:
         return keep
 
     # ---- ray queries ------------------------------------------------------------------------------
+    @contextmanager
+    def batched(self):
+        """Within: a ray query evaluates its rays and walks the BVH over them in a kernel of its own, by
+        persistent lanes (BVHKernel._walk_batch), instead of in the caller's kernel. The same results; for
+        callers that evaluate their state between ray queries anyway (a wavefront)."""
+        self.batch = True
+        try:
+            yield self
+        finally:
+            self.batch = False
+
     def _candidates(self, o, d, t_min, skip, target=None, only=None):
         for shapes in self.shape_sets:
             yield from shapes.candidates(o, d, t_min, skip, target, only)
@@ -151,7 +164,8 @@ class SceneGeometry:
             if u is not None:
                 b1, b2 = dr.select(closer, u, b1), dr.select(closer, v, b2)
         if self.meshes.bvh is not None:
-            t_best, prim, b1, b2 = self.meshes.bvh.closest_hit(o, d, t_min, t_best, prim, b1, b2, skip)
+            t_best, prim, b1, b2 = self.meshes.bvh.closest_hit(o, d, t_min, t_best, prim, b1, b2, skip,
+                                                                 self.batch)
         return Hit(t_best, prim, b1, b2, self._hit_point(o, d, t_best, prim, b1, b2))
 
     def _hit_point(self, o, d, t, prim, b1, b2) -> Array3f:
@@ -173,7 +187,7 @@ class SceneGeometry:
         for i, t, _, _ in self._candidates(o, d, 0.0, skip, target, self.occluders):
             blocked |= t < dist
         if self.meshes.bvh is not None:
-            blocked |= self.meshes.bvh.occluded(o, d, dist, skip, target, active & ~blocked)
+            blocked |= self.meshes.bvh.occluded(o, d, dist, skip, target, active & ~blocked, self.batch)
         return blocked
 
     # ---- surface data -----------------------------------------------------------------------------

@@ -9,8 +9,11 @@ dying late (an index overflow after hours, the kernel's out-of-memory killer, a 
 - **Memory.** The estimate adds the film (four sums per pixel, with the filter's border), the developed
   image and its copies for the outputs, and the working set of one launch: the path tracer's lanes, or
   the branching estimator's widest level of its ray tree (its lanes and the children array it spawns).
-  Per-lane figures were measured on hexagon_room (peak RSS of 2^21 path lanes; of the report estimator
-  at 128 x 128, max_depth 4, M = 8) and rounded up; they are estimates, not bounds.
+  A path tracer in one kernel holds a few registers per lane; bounce by bounce (a scene with a BVH,
+  integrators.path) it holds each path's state and its rays in memory. Per-lane figures were measured
+  (peak RSS of 2^21 against 2^19 path lanes, on hexagon_room and on validate bench's 249,354-triangle
+  scene; of the report estimator at 128 x 128, max_depth 4, M = 8) and rounded up; they are estimates,
+  not bounds.
 - **Developing.** Film.develop divides the sums band by band (film.DEVELOP_PIXELS), so that the film and
   its developing stay within DEVELOP_MULTIPLE of the image's own size, plus one band's few megabytes
   (tests/test_api_plan.py measures it).
@@ -30,7 +33,8 @@ MAX_LANES = 1 << 32         # lanes of one Dr.Jit array (32-bit indices)
 
 IMAGE_BYTES = 12            # per pixel of a developed image: float32 RGB
 DEVELOP_MULTIPLE = 3.0      # film (16 bytes per pixel) and its developing, in developed images (12 bytes)
-PATH_LANE_BYTES = 64        # per path-tracer lane of a launch (measured about 10)
+PATH_LANE_BYTES = 64        # per path-tracer lane of a launch in one kernel (measured about 10)
+WAVEFRONT_LANE_BYTES = 448  # per path-tracer lane of a launch bounce by bounce (measured about 350)
 WAVE_LANE_BYTES = 192       # per ray of a report-estimator level: ray, weight, hit surface (measured about 150)
 SPAWN_LANE_BYTES = 16       # per candidate child of a level (index, slot, validity, compressed index)
 
@@ -95,10 +99,10 @@ def film_bytes(width: int, height: int, border: int, float_bytes: int, images: i
 
 def plan_render(width: int, height: int, spp: int, estimator: str, max_depth: int, *, border: int = 0,
                 float_bytes: int = 4, images: int = 2, slots: int = 8, direct: int = 16,
-                memory: int | None = None, max_pass_samples: int | None = None) -> Plan:
+                memory: int | None = None, max_pass_samples: int | None = None, wavefront: bool = False) -> Plan:
     """The render's plan, or PlanError when it cannot fit. `images`: developed images held at once (the
     image and its PNG encoding count about two); `slots`, `direct`: the branching estimator's children
-    per vertex and shadow rays (BranchingEstimator)."""
+    per vertex and shadow rays (BranchingEstimator); `wavefront`: the path tracer goes bounce by bounce."""
     memory = available_memory() if memory is None else memory
     pixels = width * height
     passes = pass_spps(pixels, spp, MAX_PASS_SAMPLES if max_pass_samples is None else max_pass_samples)
@@ -118,7 +122,7 @@ def plan_render(width: int, height: int, spp: int, estimator: str, max_depth: in
                             f"memory with the film, {gib(memory)} available; {fit}")
     else:
         chunk = min(PATH_CHUNK, pixels * max(passes))
-        launch = chunk * PATH_LANE_BYTES
+        launch = chunk * (WAVEFRONT_LANE_BYTES if wavefront else PATH_LANE_BYTES)
     plan = Plan(width, height, spp, passes, chunk, film, launch, memory)
     if plan.peak_bytes > memory:
         per_pixel = plan.film_bytes / pixels

@@ -18,6 +18,7 @@ from .jit import BACKEND, PRECISION
 from .launch import seed_state
 from .plan import Plan, plan_render
 from .scene import Scene, SceneError
+from .shapes import BVH_THRESHOLD
 
 ESTIMATORS = (PathEstimator.name, BranchingEstimator.name)
 PASS_STREAM = 0x9A55_0000_0000     # random streams of passes after the first: (seed, PASS_STREAM, pass)
@@ -85,7 +86,7 @@ def render(scene: Scene | str | Path, estimator: str = "path", spp: int | None =
         raise SettingsError(f"time_limit must be a positive number of seconds, got {time_limit!r}")
     cam = scene.camera
     film = Film(cam.width, cam.height, rfilter)
-    plan = make_plan(cam.width, cam.height, spp, estimator, film.border, one_spp_passes=time_limit is not None)
+    plan = make_plan(scene, spp, estimator, film.border, one_spp_passes=time_limit is not None)
     if geometry is not None and geometry.scene is not scene:
         raise SettingsError("geometry must be a SceneGeometry of the scene rendered")
     geo = SceneGeometry(scene) if geometry is None else geometry
@@ -128,10 +129,15 @@ def check_rfilter(rfilter) -> ReconstructionFilter:
     return rfilter
 
 
-def make_plan(width: int, height: int, spp: int, estimator: PathEstimator | BranchingEstimator, border: int,
+def make_plan(scene: Scene, spp: int, estimator: PathEstimator | BranchingEstimator, border: int,
               one_spp_passes: bool = False, images: int = 2) -> Plan:
-    """tracer.plan's plan for this backend's precision and the estimator's tree."""
-    extra = {"slots": estimator.slots, "direct": estimator.direct} if isinstance(estimator, BranchingEstimator) else {}
+    """tracer.plan's plan for the scene's camera, this backend's precision and the estimator's tree (or
+    its path tracer bounce by bounce, where the scene's meshes go into a BVH)."""
+    width, height = scene.camera.width, scene.camera.height
+    if isinstance(estimator, BranchingEstimator):
+        extra = {"slots": estimator.slots, "direct": estimator.direct}
+    else:
+        extra = {"wavefront": scene.triangle_count > BVH_THRESHOLD}
     return plan_render(width, height, spp, estimator.name, estimator.max_depth, border=border,
                        float_bytes=8 if PRECISION == "double" else 4, images=images,
                        max_pass_samples=width * height if one_spp_passes else None, **extra)

@@ -41,23 +41,58 @@ class PathState:
         self.rays, self.depth, self.active = UInt32(0), UInt32(0), active
 
 
-@dr.syntax
 def path_radiance(geo: SceneGeometry, o: Array3f, d: Array3f, t_min: Float, t_max: Float, rng: PCG32,
                   max_depth: UInt32, rr_depth: UInt32) -> tuple[Array3f, UInt32]:
-    """Radiance along each camera ray and the number of rays each path traced."""
+    """Radiance along each camera ray and the number of rays each path traced. With a BVH the paths go
+    bounce by bounce (_wavefront), else in one kernel (_megakernel); each lane's path is the same."""
     path = PathState(o, d, t_min, t_max, Bool(max_depth > 0))
+    trace = _megakernel if geo.meshes.bvh is None else _wavefront
+    return trace(geo, rng, path, max_depth, rr_depth)
+
+
+@dr.syntax
+def _megakernel(geo: SceneGeometry, rng: PCG32, path: PathState, max_depth: UInt32,
+                rr_depth: UInt32) -> tuple[Array3f, UInt32]:
+    """Every path to its end in the caller's kernel, its vertices in a symbolic loop."""
     while path.active:
-        # --- intersect, add emission (MIS), sample the light and the BSDF ---
-        active_next = _vertex(geo, rng, path, max_depth)
-        path.t_min, path.t_max = Float(0.0), Float(INF)
-        path.depth += 1
-        # --- Russian roulette ---
-        rr_active = path.depth >= rr_depth
-        q = dr.minimum(dr.max(path.beta) * path.eta * path.eta, Q_MAX)
-        survive = rng.next_float32() < q
-        path.beta = dr.select(rr_active, path.beta / q, path.beta)
-        path.active = active_next & (~rr_active | survive) & (dr.max(path.beta) > 0)
+        _bounce(geo, rng, path, max_depth, rr_depth)
     return path.L, path.rays
+
+
+def _wavefront(geo: SceneGeometry, rng: PCG32, path: PathState, max_depth: UInt32,
+               rr_depth: UInt32) -> tuple[Array3f, UInt32]:
+    """The paths one bounce per step, the state of those still going evaluated between steps, and their
+    ray queries batched (SceneGeometry.batched): a packet of lanes then never waits in a BVH walk for
+    its slowest ray (wherever a path ends its L and rays go out)."""
+    n = dr.width(path.o)
+    for name in PathState.DRJIT_STRUCT:        # one value per lane, to gather from
+        value = getattr(path, name)
+        setattr(path, name, value if dr.width(value) == n else dr.tile(value, n))
+    L, rays, lane = dr.zeros(Array3f, n), dr.zeros(UInt32, n), dr.arange(UInt32, n)
+    with geo.batched():
+        while True:
+            going = dr.compress(path.active)
+            if dr.width(going) < dr.width(lane):
+                path, rng, lane = (dr.gather(type(x), x, going) for x in (path, rng, lane))
+            if dr.width(going) == 0:
+                return L, rays
+            _bounce(geo, rng, path, max_depth, rr_depth)
+            ended = ~path.active
+            dr.scatter(L, path.L, lane, ended)
+            dr.scatter(rays, path.rays, lane, ended)
+            dr.eval(path, rng, L, rays)
+
+
+def _bounce(geo, rng, path: PathState, max_depth, rr_depth) -> None:
+    """A path's next vertex (_vertex), then Russian roulette."""
+    active_next = _vertex(geo, rng, path, max_depth)
+    path.t_min, path.t_max = Float(0.0), Float(INF)
+    path.depth += 1
+    rr_active = path.depth >= rr_depth
+    q = dr.minimum(dr.max(path.beta) * path.eta * path.eta, Q_MAX)
+    survive = rng.next_float32() < q
+    path.beta = dr.select(rr_active, path.beta / q, path.beta)
+    path.active = active_next & (~rr_active | survive) & (dr.max(path.beta) > 0)
 
 
 def _vertex(geo, rng, path: PathState, max_depth) -> Bool:

@@ -47,6 +47,8 @@ GRID = 0xFFFF          # largest grid coordinate of a node's box corner
 LEAF_BIT = 1 << 31     # marks a leaf's link word
 WIDTH = 4              # children per node of the kernel's table
 MASK = (1 << WIDTH) - 1    # an inner link's low bits: the row's child slots still to visit
+BATCH_LANES = 4096     # persistent lanes of a batched walk (_walk_batch)
+REFILL_PERIOD = 2      # a batched walk's done lanes take new rays every this many steps
 _FLOAT, _UINT = (np.float64, np.uint64) if PRECISION == "double" else (np.float32, np.uint32)
 _UINT_JIT = UInt64 if PRECISION == "double" else UInt32
 
@@ -356,54 +358,120 @@ class BVHKernel:
         t_near, t_far = _max(_max(near.x, near.y), near.z), _min(_min(far.x, far.y), far.z)
         return (t_near <= t_far) & (t_far >= 0) & (t_near <= t_max), t_near, x[4 * k + 3]
 
-    def _walk(self, o: Array3f, d: Array3f, active: Bool, t_max, visit_triangle, finished, payload: tuple,
+    def _step(self, item: UInt32, stack: tuple, payload: tuple, slope: Array3f, offset: Array3f,
+              t_end, visit_triangle) -> tuple[UInt32, tuple, tuple]:
+        """One step of the walk (see _walk) for every lane: the next item, the stack and the payload."""
+        none = UInt32(0xFFFFFFFF)
+        at_leaf = (item >= LEAF_BIT) & (item != none)   # else a row, or nothing left (a lane in the loop's tail)
+        inner = ~at_leaf & (item != none)
+        payload = dr.if_stmt((item, *payload), at_leaf,
+                             lambda i, *p: visit_triangle((i & (LEAF_BIT - 1)) >> 3, *p), lambda i, *p: p)
+        x = dr.gather(ArrayXu, self.nodes, item >> WIDTH, inner, shape=(4 * WIDTH, dr.width(item)))
+        t_end = t_end(*payload)
+        t_best, near, other, near_bit, hits = Float(INF), UInt32(0), UInt32(0), UInt32(0), UInt32(0)
+        for k in range(WIDTH):   # `other`: with two slots entered, the farther one's link
+            hit, t, link = self._child(x, k, slope, offset, t_end)
+            hit &= inner & ((item & (1 << k)) != 0)
+            hits |= dr.select(hit, 1 << k, 0)
+            closer = hit & (t < t_best)
+            other = dr.select(closer, near, dr.select(hit, link, other))
+            t_best, near, near_bit = (dr.select(closer, t, t_best), dr.select(closer, link, near),
+                                      dr.select(closer, 1 << k, near_bit))
+        rest_bits = hits & ~near_bit
+        more = at_leaf & ((item & 7) > 1)   # the leaf's next triangle: first + 1, count - 1
+        push, pop = rest_bits != 0, ~((hits != 0) | more)
+        one = (rest_bits & (rest_bits - 1)) == 0   # one other slot entered: pushed itself, else the row
+        pushed = (dr.select(one, other, (item & (0xFFFFFFFF ^ MASK)) | rest_bits), *stack[:-1])
+        popped = (*stack[1:], none)
+        item = dr.select(pop, stack[0], dr.select(more, item + 7, near))
+        stack = tuple(dr.select(push, p, dr.select(pop, q, s)) for p, q, s in zip(pushed, popped, stack))
+        return item, stack, payload
+
+    def _walk(self, ray: tuple, active: Bool, t_max, visit_triangle, finished, payload: tuple,
               count_work: bool = False) -> tuple:
-        """Depth-first traversal, nearest child first, of the boxes that o + t d, 0 <= t <= t_max(payload),
-        enters: payload = visit_triangle(triangle slot, *payload) for each triangle of each such leaf; a lane
-        stops at the end or once finished(*payload). Each step a lane either tests the boxes of a row's
-        child slots still to visit (its item's mask) or one triangle of a leaf. From a row it goes to the
-        nearest child it enters; it pushes the other one it enters, or, if several, the row back with those
-        slots (tested again, against the then closest hit, when popped). With count_work (diagnostics only),
-        the payload is followed by the number of row steps each lane took and of triangles it tested."""
-        (slope, offset), none, n = self.grid.ray_terms(o, d), UInt32(0xFFFFFFFF), len(payload)
+        """Depth-first traversal, nearest child first, of the boxes that o + t d, 0 <= t <= t_max(ray,
+        *payload), enters, ray = (o, d, ...): payload = visit_triangle(triangle slot, ray, *payload) for each
+        triangle of each such leaf; a lane stops at the end or once finished(*payload). Each step a lane
+        either tests the boxes of a row's child slots still to visit (its item's mask) or one triangle of a
+        leaf. From a row it goes to the nearest child it enters; it pushes the other one it enters, or, if
+        several, the row back with those slots (tested again, against the then closest hit, when popped).
+        Each lane walks its own ray, in one loop that a packet of lanes leaves when its last lane is done.
+        With count_work (diagnostics only), the payload is followed by the number of row steps each lane
+        took and of triangles it tested."""
+        (slope, offset), none, n = self.grid.ray_terms(ray[0], ray[1]), UInt32(0xFFFFFFFF), len(payload)
         counter = (UInt32(0), UInt32(0)) if count_work else ()
         c = len(counter)
+        visit = lambda slot, *p: visit_triangle(slot, ray, *p)   # noqa: E731
+        t_end = lambda *p: t_max(ray, *p)                        # noqa: E731
 
         def cond(item, *rest):
             return (item != none) & ~finished(*rest[c:c + n])
 
         def body(item, *rest):
             payload, stack = rest[c:c + n], rest[c + n:]
-            at_leaf = item >= LEAF_BIT          # else a row (`none` lanes are no longer in the loop)
-            inner = ~at_leaf
-            counted = (rest[0] + dr.select(inner, 1, 0), rest[1] + dr.select(at_leaf, 1, 0)) if c else ()
-            payload = dr.if_stmt((item, *payload), at_leaf,
-                                 lambda i, *p: visit_triangle((i & (LEAF_BIT - 1)) >> 3, *p), lambda i, *p: p)
-            x = dr.gather(ArrayXu, self.nodes, item >> WIDTH, inner, shape=(4 * WIDTH, dr.width(item)))
-            t_end = t_max(*payload)
-            t_best, near, other, near_bit, hits = Float(INF), UInt32(0), UInt32(0), UInt32(0), UInt32(0)
-            for k in range(WIDTH):   # `other`: with two slots entered, the farther one's link
-                hit, t, link = self._child(x, k, slope, offset, t_end)
-                hit &= inner & ((item & (1 << k)) != 0)
-                hits |= dr.select(hit, 1 << k, 0)
-                closer = hit & (t < t_best)
-                other = dr.select(closer, near, dr.select(hit, link, other))
-                t_best, near, near_bit = (dr.select(closer, t, t_best), dr.select(closer, link, near),
-                                          dr.select(closer, 1 << k, near_bit))
-            rest_bits = hits & ~near_bit
-            more = at_leaf & ((item & 7) > 1)   # the leaf's next triangle: first + 1, count - 1
-            push, pop = rest_bits != 0, ~((hits != 0) | more)
-            one = (rest_bits & (rest_bits - 1)) == 0   # one other slot entered: pushed itself, else the row
-            pushed = (dr.select(one, other, (item & (0xFFFFFFFF ^ MASK)) | rest_bits), *stack[:-1])
-            popped = (*stack[1:], none)
-            item = dr.select(pop, stack[0], dr.select(more, item + 7, near))
-            stack = tuple(dr.select(push, p, dr.select(pop, q, s)) for p, q, s in zip(pushed, popped, stack))
+            at_leaf = item >= LEAF_BIT
+            counted = (rest[0] + dr.select(~at_leaf, 1, 0), rest[1] + dr.select(at_leaf, 1, 0)) if c else ()
+            item, stack, payload = self._step(item, stack, payload, slope, offset, t_end, visit)
             return (item, *counted, *payload, *stack)
 
         start = dr.select(active, UInt32(self.root), none)
         state = (start, *counter, *payload, *(UInt32(none) for _ in range(self.stack_size)))
         out = dr.while_loop(state, cond, body)
         return (*out[1 + c:1 + c + n], *out[1:1 + c])
+
+    def _walk_batch(self, ray: tuple, active: Bool, t_max, visit_triangle, finished, payload: tuple) -> tuple:
+        """The walk of _walk over a batch of rays held in memory, by persistent lanes (Aila and Laine,
+        "Understanding the efficiency of ray traversal on GPUs", 2009): BATCH_LANES lanes each take the
+        next untraced ray from a shared counter when theirs is done, so that a packet of lanes keeps
+        working until the batch is done instead of waiting for its slowest ray (with incoherent rays most of
+        a packet's lanes are idle in _walk). A done lane takes its next ray every REFILL_PERIOD steps, so the
+        fetch runs for several lanes at once. Each ray's walk, and so its result, is that of _walk.
+        `ray` and `payload`: arrays of one value per ray (or one for all); returns the payload per ray,
+        unchanged where not active."""
+        width = max(dr.width(x) for x in (*ray, *payload, active))
+        first = tuple(_batch_array(x, width) for x in payload)   # each ray's payload at its start
+        out = tuple(_batch_array(x, width) for x in payload)
+        rays = dr.compress(_batch_array(Bool(active), width))   # the rays to walk, by index
+        n = dr.width(rays)
+        if n == 0:
+            return out
+        dr.eval(*ray, *first, *out)
+        lanes, none, k, m = min(BATCH_LANES, n), UInt32(0xFFFFFFFF), len(ray), len(payload)
+        counter = UInt32(lanes)       # the next ray to take
+        empty = tuple(UInt32(none) for _ in range(self.stack_size))
+
+        def fetch(r: UInt32, take: Bool) -> tuple:
+            """A lane's state for ray rays[r] where `take`: (item, its ray's values, ray terms, payload)."""
+            i = dr.gather(UInt32, rays, r, take)
+            values = tuple(x if dr.width(x) == 1 else dr.gather(type(x), x, i, take) for x in ray)
+            return (dr.select(take, UInt32(self.root), none), *values, *self.grid.ray_terms(values[0], values[1]),
+                    *(dr.gather(type(x), x, i, take) for x in first))
+
+        def cond(step, r, *lane):
+            return r < n
+
+        def body(step, r, item, *rest):
+            values, (slope, offset), payload, stack = rest[:k], rest[k:k + 2], rest[k + 2:k + 2 + m], rest[k + 2 + m:]
+            item, stack, payload = self._step(item, stack, payload, slope, offset, lambda *p: t_max(values, *p),
+                                              lambda slot, *p: visit_triangle(slot, values, *p))
+            step += 1
+            take = ((item == none) | finished(*payload)) & ((step % REFILL_PERIOD) == 0)
+
+            def refill(r, *lane):
+                i = dr.gather(UInt32, rays, r, take)
+                for target, value in zip(out, lane[k + 3:k + 3 + m]):
+                    dr.scatter(target, value, i, take)
+                r = dr.select(take, dr.scatter_inc(counter, UInt32(0), take), r)
+                new = take & (r < n)
+                fresh = (*fetch(r, new), *empty)
+                return (r, *(dr.select(take, a, b) for a, b in zip(fresh, lane)))
+
+            lane = dr.if_stmt((r, item, *values, slope, offset, *payload, *stack), take, refill, lambda *lane: lane)
+            return (step, *lane)
+
+        dr.while_loop((UInt32(0), dr.arange(UInt32, lanes), *fetch(dr.arange(UInt32, lanes), Bool(True)), *empty),
+                      cond, body)
+        return out
 
     def _triangle(self, slot, o, d, t_min, t_max, skip, target):
         """The triangle in `slot`: (t, prim, b1, b2), t = inf if o + t d misses it in (t_min, t_max) or it is
@@ -418,36 +486,47 @@ class BVHKernel:
         return dr.select(ok, t, INF), prim, b1, b2
 
     def closest_hit(self, o: Array3f, d: Array3f, t_min, t_best: Float, prim: UInt32, b1: Float, b2: Float,
-                    skip: UInt32):
-        """Improves (t_best, prim, b1, b2) with the BVH's triangles."""
-        def visit_triangle(slot, t_best, prim, b1, b2):
+                    skip: UInt32, batch: bool = False):
+        """Improves (t_best, prim, b1, b2) with the BVH's triangles; `batch`: by _walk_batch (the
+        arguments are then evaluated first), else in the caller's kernel (_walk)."""
+        def visit_triangle(slot, ray, t_best, prim, b1, b2):
+            o, d, t_min, skip = ray
             t, tri_prim, u, v = self._triangle(slot, o, d, t_min, t_best, skip, None)
             closer = t < t_best
             return (dr.select(closer, t, t_best), dr.select(closer, tri_prim, prim),
                     dr.select(closer, u, b1), dr.select(closer, v, b2))
 
-        return self._walk(o, d, Bool(True), lambda t_best, *_: t_best, visit_triangle, lambda *_: Bool(False),
-                          (Float(t_best), UInt32(prim), Float(b1), Float(b2)))
+        walk = self._walk_batch if batch else self._walk
+        return walk((o, d, Float(t_min), UInt32(skip)), Bool(True), lambda ray, t_best, *_: t_best,
+                    visit_triangle, lambda *_: Bool(False), (Float(t_best), UInt32(prim), Float(b1), Float(b2)))
 
     def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32,
-                 active: Bool = True) -> Bool:
+                 active: Bool = True, batch: bool = False) -> Bool:
         """Whether a BVH triangle other than skip and target lies on o + t d, 0 < t < dist; False where
-        not active (such lanes skip the traversal)."""
-        def visit_triangle(slot, blocked):
+        not active (such lanes skip the traversal). `batch`: as in closest_hit."""
+        def visit_triangle(slot, ray, blocked):
+            o, d, dist, skip, target = ray
             return (blocked | (self._triangle(slot, o, d, 0.0, dist, skip, target)[0] < dist),)
 
-        return self._walk(o, d, Bool(active), lambda _: dist, visit_triangle, lambda blocked: blocked,
-                          (Bool(False),))[0]
+        walk = self._walk_batch if batch else self._walk
+        return walk((o, d, Float(dist), UInt32(skip), UInt32(target)), Bool(active), lambda ray, _: ray[2],
+                    visit_triangle, lambda blocked: blocked, (Bool(False),))[0]
 
     def closest_hit_work(self, o: Array3f, d: Array3f) -> tuple[UInt32, UInt32]:
         """Diagnostics: the row steps (a row popped back counts again) and the triangles tested by each ray's
         closest-hit traversal (the same walk as closest_hit, counting)."""
-        def visit_triangle(slot, t_best):
-            return (dr.minimum(self._triangle(slot, o, d, 0.0, t_best, UInt32(0xFFFFFFFF), None)[0], t_best),)
+        def visit_triangle(slot, ray, t_best):
+            return (dr.minimum(self._triangle(slot, ray[0], ray[1], 0.0, t_best, UInt32(0xFFFFFFFF), None)[0],
+                               t_best),)
 
-        _, steps, tests = self._walk(o, d, Bool(True), lambda t_best: t_best, visit_triangle,
+        _, steps, tests = self._walk((o, d), Bool(True), lambda ray, t_best: t_best, visit_triangle,
                                      lambda *_: Bool(False), (Float(INF),), count_work=True)
         return steps, tests
+
+
+def _batch_array(x, width: int):
+    """A fresh array of `width` values: x's, or x repeated if it holds one (a target for dr.scatter)."""
+    return dr.tile(x, width) if dr.width(x) == 1 else dr.copy(x)
 
 
 def _min(a, b):

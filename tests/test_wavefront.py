@@ -1,0 +1,92 @@
+"""Batched BVH walks (persistent lanes over rays in memory) and the path tracer bounce by bounce give
+exactly the results of the walk and the paths in one kernel."""
+import numpy as np
+import pytest
+
+import tracer
+import tracer.integrators.path as path_integrator
+from tracer.camera import primary_rays
+from tracer.estimators import PathEstimator
+from tracer.geometry import SceneGeometry
+from tracer.jit import NO_PRIM, Array3f, Bool, Float, UInt32, opaque_u32
+from tracer.plan import PATH_LANE_BYTES, WAVEFRONT_LANE_BYTES
+from tracer.rendering import make_plan
+from tracer.sampling import seeded_rng
+from tracer.shapes import BVH_THRESHOLD
+from tracer.shapes.bvh import BATCH_LANES, BVHKernel
+
+from .conftest import SCENES
+
+N = 3 * BATCH_LANES + 123     # rays: every lane takes several, the last ones a part
+
+
+@pytest.fixture(scope="module")
+def kernel_and_rays():
+    rng = np.random.default_rng(21)
+    tris = rng.uniform(-1, 1, (3000, 1, 3)) + rng.uniform(-0.08, 0.08, (3000, 3, 3))
+    o = rng.uniform(-1.2, 1.2, (N, 3))
+    d = rng.normal(size=(N, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return BVHKernel(tris, prim_base=5), Array3f(*o.T), Array3f(*d.T), rng
+
+
+def test_batched_closest_hits_are_the_walks(kernel_and_rays):
+    kernel, o, d, rng = kernel_and_rays
+    t_best = Float(np.where(rng.uniform(size=N) < 0.3, rng.uniform(0.1, 2, N), np.inf))  # a hit found before
+    prim = UInt32(np.where(np.isfinite(t_best.numpy()), 1, NO_PRIM).astype(np.uint32))
+    b1, b2 = Float(rng.uniform(size=N)), Float(rng.uniform(size=N))
+    skip = UInt32(rng.integers(5, 3005, N).astype(np.uint32))
+    walk = kernel.closest_hit(o, d, 0.0, t_best, prim, b1, b2, skip)
+    batch = kernel.closest_hit(o, d, 0.0, t_best, prim, b1, b2, skip, batch=True)
+    assert 0.2 < np.isfinite(walk[0].numpy()).mean() < 0.95
+    for a, b in zip(walk, batch):
+        np.testing.assert_array_equal(a.numpy(), b.numpy())
+
+
+def test_batched_shadow_rays_are_the_walks(kernel_and_rays):
+    kernel, o, d, rng = kernel_and_rays
+    dist = Float(rng.uniform(0.01, 2.5, N))
+    skip, target = (UInt32(rng.integers(5, 3005, N).astype(np.uint32)) for _ in range(2))
+    active = Bool(rng.uniform(size=N) < 0.7)
+    walk = kernel.occluded(o, d, dist, skip, target, active).numpy()
+    batch = kernel.occluded(o, d, dist, skip, target, active, batch=True).numpy()
+    assert 0.1 < walk.mean() < 0.6 and not walk[~active.numpy()].any()
+    np.testing.assert_array_equal(walk, batch)
+    nothing = kernel.occluded(o, d, dist, skip, target, Bool(False), batch=True).numpy()
+    assert len(nothing) == N and not nothing.any()
+
+
+def _paths(geo, scene, trace):
+    """Radiance and rays of 16 x 16 pixels at 4 spp traced by `trace` (the integrator's loop)."""
+    sample = UInt32(np.arange(16 * 16 * 4, dtype=np.uint32))
+    rng = seeded_rng(sample, 7)
+    o, d, t_min, t_max, _, _ = primary_rays(scene.camera, sample // 4, rng)
+    path = path_integrator.PathState(o, d, t_min, t_max, Bool(True))
+    L, rays = trace(geo, rng, path, opaque_u32(5), opaque_u32(scene.rr_depth))
+    return L.numpy(), rays.numpy()
+
+
+def test_paths_bounce_by_bounce_are_the_paths_in_one_kernel(monkeypatch):
+    """The Cornell box with its blocks in a BVH: the same radiance and ray counts to the bit."""
+    scene = tracer.load_scene(SCENES / "cornell_box.xml", width=16, height=16)
+    geo = SceneGeometry(scene, bvh_threshold=0)
+    one_kernel = _paths(geo, scene, path_integrator._megakernel)
+    wavefront = _paths(geo, scene, path_integrator._wavefront)
+    assert one_kernel[1].min() >= 1 and one_kernel[1].max() > 5   # paths of several bounces
+    for a, b in zip(one_kernel, wavefront):
+        np.testing.assert_array_equal(a, b)
+    used = []
+    monkeypatch.setattr(path_integrator, "_wavefront", lambda *a: used.append(a) or one_kernel)
+    PathEstimator(5).samples(geo, scene, UInt32(0), UInt32(0), 1)
+    assert used                                       # a scene with a BVH goes bounce by bounce
+
+
+def test_the_plan_counts_a_wavefronts_memory(tmp_path):
+    from validation.mesh_scene import write_mesh_scene
+
+    room = tracer.load_scene(SCENES / "hexagon_room.xml", width=64, height=64)
+    meshes = tracer.load_scene(write_mesh_scene(tmp_path, 3000), width=64, height=64)
+    assert meshes.triangle_count > BVH_THRESHOLD >= room.triangle_count
+    estimator = PathEstimator(5)
+    assert make_plan(room, 16, estimator, 0).launch_bytes == 64 * 64 * 16 * PATH_LANE_BYTES
+    assert make_plan(meshes, 16, estimator, 0).launch_bytes == 64 * 64 * 16 * WAVEFRONT_LANE_BYTES
