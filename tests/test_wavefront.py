@@ -90,3 +90,21 @@ def test_the_plan_counts_a_wavefronts_memory(tmp_path):
     estimator = PathEstimator(5)
     assert make_plan(room, 16, estimator, 0).launch_bytes == 64 * 64 * 16 * PATH_LANE_BYTES
     assert make_plan(meshes, 16, estimator, 0).launch_bytes == 64 * 64 * 16 * WAVEFRONT_LANE_BYTES
+
+
+def test_the_branching_estimators_levels_walk_the_bvh_batched(monkeypatch):
+    """The report estimator's levels are in memory: their closest hits go batched, with the same image."""
+    from contextlib import nullcontext
+
+    from tracer.rendering import render
+
+    scene = tracer.load_scene(SCENES / "cornell_box.xml", width=12, height=12)
+    geo = SceneGeometry(scene, bvh_threshold=0)
+    walks = []
+    batch = geo.meshes.bvh._walk_batch
+    monkeypatch.setattr(geo.meshes.bvh, "_walk_batch", lambda *a: walks.append(1) or batch(*a))
+    batched = render(scene, "report", spp=2, seed=3, max_depth=4, direct=2, indirect=2, geometry=geo).image
+    assert walks
+    monkeypatch.setattr(geo, "batched", nullcontext)
+    in_kernel = render(scene, "report", spp=2, seed=3, max_depth=4, direct=2, indirect=2, geometry=geo).image
+    np.testing.assert_array_equal(batched, in_kernel)

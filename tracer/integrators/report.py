@@ -58,7 +58,8 @@ def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int
                 radiance: Float, seed: int) -> tuple[Wavefront | None, int]:
     """Intersects one level (its rays end at path vertex `vertex`), adds its emission and eq. 10 estimates
     to `radiance` (flat RGB per camera sample) and returns the next level and the number of rays traced."""
-    hit = geo.closest_hit(wave.o, wave.d, wave.t_min, wave.t_max, wave.skip)
+    with geo.batched():   # the level's rays are in memory: a BVH walks them by persistent lanes
+        hit = geo.closest_hit(wave.o, wave.d, wave.t_min, wave.t_max, wave.skip)
     surf = geo.surface(hit)
     wi = -wave.d
     if geo.emitters:
