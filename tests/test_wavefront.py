@@ -13,7 +13,7 @@ from tracer.plan import PATH_LANE_BYTES, WAVEFRONT_LANE_BYTES
 from tracer.rendering import make_plan
 from tracer.sampling import seeded_rng
 from tracer.shapes import BVH_THRESHOLD
-from tracer.shapes.bvh import BATCH_LANES, BVHKernel
+from tracer.shapes.bvh import BATCH_LANES, BATCHED_WALKS, BVHKernel
 
 from .conftest import SCENES
 
@@ -78,7 +78,7 @@ def test_paths_bounce_by_bounce_are_the_paths_in_one_kernel(monkeypatch):
     used = []
     monkeypatch.setattr(path_integrator, "_wavefront", lambda *a: used.append(a) or one_kernel)
     PathEstimator(5).samples(geo, scene, UInt32(0), UInt32(0), 1)
-    assert used                                       # a scene with a BVH goes bounce by bounce
+    assert bool(used) == BATCHED_WALKS                # a scene with a BVH goes bounce by bounce (on the CPU)
 
 
 def test_the_plan_counts_a_wavefronts_memory(tmp_path):
@@ -89,7 +89,8 @@ def test_the_plan_counts_a_wavefronts_memory(tmp_path):
     assert meshes.triangle_count > BVH_THRESHOLD >= room.triangle_count
     estimator = PathEstimator(5)
     assert make_plan(room, 16, estimator, 0).launch_bytes == 64 * 64 * 16 * PATH_LANE_BYTES
-    assert make_plan(meshes, 16, estimator, 0).launch_bytes == 64 * 64 * 16 * WAVEFRONT_LANE_BYTES
+    lane_bytes = WAVEFRONT_LANE_BYTES if BATCHED_WALKS else PATH_LANE_BYTES
+    assert make_plan(meshes, 16, estimator, 0).launch_bytes == 64 * 64 * 16 * lane_bytes
 
 
 def test_the_branching_estimators_levels_walk_the_bvh_batched(monkeypatch):
@@ -104,7 +105,7 @@ def test_the_branching_estimators_levels_walk_the_bvh_batched(monkeypatch):
     batch = geo.meshes.bvh._walk_batch
     monkeypatch.setattr(geo.meshes.bvh, "_walk_batch", lambda *a: walks.append(1) or batch(*a))
     batched = render(scene, "report", spp=2, seed=3, max_depth=4, direct=2, indirect=2, geometry=geo).image
-    assert walks
+    assert bool(walks) == BATCHED_WALKS
     monkeypatch.setattr(geo, "batched", nullcontext)
     in_kernel = render(scene, "report", spp=2, seed=3, max_depth=4, direct=2, indirect=2, geometry=geo).image
     np.testing.assert_array_equal(batched, in_kernel)

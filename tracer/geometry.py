@@ -20,6 +20,7 @@ from .materials import MaterialTables
 from .sampling import square_to_uniform_sphere
 from .scene import Scene
 from .shapes import BVH_THRESHOLD, SETS, MeshSet, RectangleSet, ShapeSet
+from .shapes.bvh import BATCHED_WALKS
 from .shapes.planar import inset_point
 
 
@@ -142,8 +143,9 @@ class SceneGeometry:
     def batched(self):
         """Within: a ray query evaluates its rays and walks the BVH over them in a kernel of its own, by
         persistent lanes (BVHKernel._walk_batch), instead of in the caller's kernel. The same results; for
-        callers that evaluate their state between ray queries anyway (a wavefront)."""
-        self.batch = True
+        callers that evaluate their state between ray queries anyway (a wavefront). On the LLVM backend only
+        (shapes.bvh.BATCHED_WALKS)."""
+        self.batch = BATCHED_WALKS
         try:
             yield self
         finally:

@@ -19,6 +19,7 @@ from .launch import seed_state
 from .plan import Plan, plan_render
 from .scene import Scene, SceneError
 from .shapes import BVH_THRESHOLD
+from .shapes.bvh import BATCHED_WALKS
 
 ESTIMATORS = (PathEstimator.name, BranchingEstimator.name)
 PASS_STREAM = 0x9A55_0000_0000     # random streams of passes after the first: (seed, PASS_STREAM, pass)
@@ -137,7 +138,7 @@ def make_plan(scene: Scene, spp: int, estimator: PathEstimator | BranchingEstima
     if isinstance(estimator, BranchingEstimator):
         extra = {"slots": estimator.slots, "direct": estimator.direct}
     else:
-        extra = {"wavefront": scene.triangle_count > BVH_THRESHOLD}
+        extra = {"wavefront": scene.triangle_count > BVH_THRESHOLD and BATCHED_WALKS}
     return plan_render(width, height, spp, estimator.name, estimator.max_depth, border=border,
                        float_bytes=8 if PRECISION == "double" else 4, images=images,
                        max_pass_samples=width * height if one_spp_passes else None, **extra)

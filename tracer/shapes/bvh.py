@@ -38,7 +38,7 @@ import drjit as dr
 import numpy as np
 
 from .triangle import ray_triangle
-from ..jit import INF, PRECISION, Array3f, ArrayXf, ArrayXu, Bool, Float, UInt32, UInt64
+from ..jit import BACKEND, INF, PRECISION, Array3f, ArrayXf, ArrayXu, Bool, Float, UInt32, UInt64
 
 LEAF_SIZE = 4      # most triangles in a leaf (at most 7: a leaf's link holds the count in 3 bits)
 BINS = 16          # SAH candidate splits per node: between bins of equal triangle counts
@@ -49,6 +49,7 @@ WIDTH = 4              # children per node of the kernel's table
 MASK = (1 << WIDTH) - 1    # an inner link's low bits: the row's child slots still to visit
 BATCH_LANES = 4096     # persistent lanes of a batched walk (_walk_batch)
 REFILL_PERIOD = 2      # a batched walk's done lanes take new rays every this many steps
+BATCHED_WALKS = BACKEND == "llvm"   # persistent lanes measured on the CPU's SIMD packets; a GPU keeps the walk in-kernel
 _FLOAT, _UINT = (np.float64, np.uint64) if PRECISION == "double" else (np.float32, np.uint32)
 _UINT_JIT = UInt64 if PRECISION == "double" else UInt32
 
