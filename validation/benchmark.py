@@ -536,7 +536,10 @@ def mesh_markdown(rows: dict) -> list[str]:
               "random directions, closest hit (the tracer's `closest_hit`, Mitsuba's `ray_intersect_preliminary`) "
               "and the same rays as shadow rays of random length (`occluded`, `ray_test`); median of 5 launches. "
               "BVH work per closest-hit ray is counted by a copy of the traversal that counts "
-              "(`BVHKernel.closest_hit_work`).",
+              "(`BVHKernel.closest_hit_work`). The tracer walks its BVH in two ways: inside the kernel that asks "
+              "(each lane its own ray to the end, so a packet of lanes takes as many steps as its longest walk), or "
+              "batched, over rays in memory, by persistent lanes that each take the next ray when theirs is done "
+              "(`BVHKernel._walk_batch`); renders use the batched walk, on the LLVM backend.",
               ""]
     header = "| | " + " | ".join(f"tracer, {row['triangles']:,} | Mitsuba, {row['triangles']:,}" for row in rows.values()) + " |"
     lines += [header, "|---|" + "---:|" * (2 * len(rows))]
@@ -548,7 +551,8 @@ def mesh_markdown(rows: dict) -> list[str]:
                 out.append(f(x) if f is not None else "–")
         return " | ".join(out)
 
-    rate = lambda key: lambda x: f"{x['profile']['rays'] / x['profile'][key] / 1e6:.1f} M"  # noqa: E731
+    def rate(key):   # "–" where a run from before the key was measured has none
+        return lambda x: f"{x['profile']['rays'] / x['profile'][key] / 1e6:.1f} M" if key in x["profile"] else "–"
     lines += [
         "| scene loading (XML, OBJ, normals) [s] | " + cells(lambda x: f"{x['load_seconds']:.2f}",
                                                          lambda x: f"{x['setup_seconds']:.2f} (with BVH)") + " |",
@@ -557,8 +561,14 @@ def mesh_markdown(rows: dict) -> list[str]:
         "| first render: kernel compile (Dr.Jit's kernel cache as the bench left it) [s] | " + cells(lambda x: f"{x['first_compile']:.2f}", None) + " |",
         "| render [s] | " + cells(lambda x: f"{x['median']:.2f}", lambda x: f"{x['median']:.2f}") + " |",
         "| rays traced per render (closest hit + shadow) | " + cells(lambda x: f"{x['rays'] / 1e6:.1f} M", None) + " |",
-        "| closest-hit queries alone [rays/s] | " + cells(rate("closest_seconds"), rate("closest_seconds")) + " |",
-        "| shadow queries alone [rays/s] | " + cells(rate("shadow_seconds"), rate("shadow_seconds")) + " |",
+        "| closest-hit queries alone, batched walk (the renders') [rays/s] | "
+        + cells(rate("closest_batch_seconds"), rate("closest_seconds")) + " |",
+        "| closest-hit queries alone, walk in the caller's kernel [rays/s] | " + cells(rate("closest_seconds"), None) + " |",
+        "| shadow queries alone, batched walk (the renders') [rays/s] | "
+        + cells(rate("shadow_batch_seconds"), rate("shadow_seconds")) + " |",
+        "| shadow queries alone, walk in the caller's kernel [rays/s] | " + cells(rate("shadow_seconds"), None) + " |",
+        "| lane-steps that do work in a 16-lane packet, walk in the caller's kernel | "
+        + cells(lambda x: f"{x['profile']['packet_busy']:.0%}" if "packet_busy" in x["profile"] else "–", None) + " |",
         "| random rays that hit | " + cells(lambda x: f"{x['profile']['hit_fraction']:.2f}",
                                             lambda x: f"{x['profile']['hit_fraction']:.2f}") + " |",
         "| BVH node rows (4-wide) visited per closest-hit ray, revisits included (mean, p90) | "

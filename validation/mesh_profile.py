@@ -1,7 +1,9 @@
 """Where a mesh scene's ray time goes, for `validate bench`: the tracer's closest-hit and shadow-ray queries
 alone (no shading) on the same random rays as Mitsuba's (Embree's) `ray_intersect_preliminary` and
 `ray_test`, and the tracer's BVH work per ray (4-wide node rows visited, triangles tested; a counting copy of the
-traversal, tracer.shapes.bvh.BVHKernel.closest_hit_work).
+traversal, tracer.shapes.bvh.BVHKernel.closest_hit_work), and from it the share of a packet's lane-steps
+that do work when each lane walks its own ray to its end (the in-kernel walk: a packet takes as many steps
+as its longest walk), which the batched walk (BVHKernel._walk_batch) recovers.
 
 The rays start uniformly inside the scene's bounding box, in uniformly random directions; shadow rays are
 the same rays cut to a length uniform in (0, half the box's diagonal). Each query is launched LAUNCHES
@@ -16,6 +18,7 @@ import numpy as np
 
 RAYS = 1 << 20
 LAUNCHES = 5
+PACKET = 16        # lanes of an AVX-512 packet of 32-bit values, as Dr.Jit's LLVM backend runs a kernel
 
 
 def random_rays(lo: np.ndarray, hi: np.ndarray, n: int = RAYS, seed: int = 0):
@@ -57,8 +60,12 @@ def profile_tracer(geometry) -> dict:
         h = geometry.closest_hit(o, d, 0.0, float("inf"), none)
         return h.t, h.prim
 
-    out = {"rays": RAYS, "closest_seconds": _timed(closest),
-           "shadow_seconds": _timed(lambda: (geometry.occluded(o, d, dist, none, none),))}
+    def shadow():
+        return (geometry.occluded(o, d, dist, none, none),)
+
+    out = {"rays": RAYS, "closest_seconds": _timed(closest), "shadow_seconds": _timed(shadow)}
+    with geometry.batched():   # the walks the path tracer and the report estimator's levels use
+        out.update(closest_batch_seconds=_timed(closest), shadow_batch_seconds=_timed(shadow))
     hit = closest()[1]
     out["hit_fraction"] = float(np.mean(hit.numpy() != NO_PRIM))
     if geometry.meshes.bvh is not None:
@@ -66,7 +73,9 @@ def profile_tracer(geometry) -> dict:
         layout(geometry.meshes.tri_vertices)
         out["bvh_build_seconds"] = time.perf_counter() - start
         steps, tests = (a.numpy() for a in geometry.meshes.bvh.closest_hit_work(o, d))
+        work = (steps + tests)[:len(steps) // PACKET * PACKET].reshape(-1, PACKET)
         out.update(steps_mean=float(steps.mean()), steps_p90=float(np.percentile(steps, 90)),
+                   packet_busy=float(work.mean() / work.max(axis=1).mean()),
                    tests_mean=float(tests.mean()), tests_p90=float(np.percentile(tests, 90)),
                    bvh_rows=len(geometry.meshes.bvh.rows), bvh_depth=geometry.meshes.bvh.stack_size)
     return out
