@@ -74,10 +74,10 @@ def _wavefront(geo: SceneGeometry, rng: PCG32, path: PathState, max_depth: UInt3
     with geo.batched():
         while True:
             going = dr.compress(path.active)
-            if dr.width(going) < dr.width(lane):
-                path, rng, lane = (dr.gather(type(x), x, going) for x in (path, rng, lane))
             if dr.width(going) == 0:
                 return L, rays
+            if dr.width(going) < dr.width(lane):
+                path, rng, lane = (dr.gather(type(x), x, going) for x in (path, rng, lane))
             _bounce(geo, rng, path, max_depth, rr_depth)
             ended = ~path.active
             dr.scatter(L, path.L, lane, ended)
