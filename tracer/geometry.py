@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from .jit import NO_PRIM, Array3f, Bool, Float, UInt32, vec3
+from .jit import HOST_FLOAT, NO_PRIM, Array3f, Bool, Float, UInt32, vec3
 from .lights import LightSample, select_sample
 from .lights.envmap import EnvmapKernel
 from .materials import MaterialTables
@@ -81,7 +81,7 @@ class SceneGeometry:
     # ---- host-side tables, gathered by primitive index -------------------------------------------
     def _build_tables(self) -> None:
         n = max(self.n_prims, 1)  # an empty scene still needs a table to gather (masked off) from
-        normals, material = np.zeros((n, 3)), np.zeros(n, np.uint32)
+        normals, material = np.zeros((n, 3), HOST_FLOAT), np.zeros(n, np.uint32)
         radiance, light_pdf = np.zeros((n, 3)), np.zeros(n)
         for shapes in self.shape_sets:
             normals[shapes.base:shapes.base + shapes.count] = shapes.normals()
@@ -96,7 +96,7 @@ class SceneGeometry:
         self.prim_material = UInt32(material)
         self.prim_radiance = Float(radiance.ravel())
         self.prim_light_pdf = Float(light_pdf)
-        frames = np.zeros((max(self.curved_base, 1), 3, 3))
+        frames = np.zeros((max(self.curved_base, 1), 3, 3), HOST_FLOAT)
         for shapes in self.shape_sets:
             if shapes.planar:
                 frames[shapes.base:shapes.base + shapes.count] = shapes.frames()

@@ -340,11 +340,14 @@ class BVHKernel:
         self.nodes = UInt32(_aligned(tables.nodes))
         self.root = int((tables.nodes[0, 3::4] != 0) @ (1 << np.arange(WIDTH)))   # the root row's link (full slots: links > 0)
         self.stack_size = tables.stack_size
-        v = tri_vertices[tables.order]
-        tris = np.zeros((len(v), 12), _FLOAT)
-        tris[:, 0:3], tris[:, 4:7], tris[:, 8:11] = v[:, 0], v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
+        v = np.take(tri_vertices, tables.order, axis=0)
+        tris = _aligned_empty((len(v), 12), _FLOAT)   # rows (v0, prim, v1 - v0, 0, v2 - v0, 0)
+        tris[:, 0:3] = v[:, 0]
+        np.subtract(v[:, 1], v[:, 0], out=tris[:, 4:7])   # in float64, rounded once
+        np.subtract(v[:, 2], v[:, 0], out=tris[:, 8:11])
         tris[:, 3] = (tables.order + prim_base).astype(_UINT).view(_FLOAT)
-        self.tris = Float(_aligned(tris.ravel()))
+        tris[:, 7] = tris[:, 11] = 0
+        self.tris = Float(tris.ravel())
 
     def _child(self, x: ArrayXu, k: int, slope: Array3f, offset: Array3f,
                t_max: Float) -> tuple[Bool, Float, UInt32]:
@@ -461,11 +464,19 @@ def _max(a, b):
     return dr.select(a > b, a, b)
 
 
-def _aligned(a: np.ndarray, alignment: int = 64) -> np.ndarray:
-    """A copy of `a` starting on an `alignment`-byte boundary. Dr.Jit wraps a NumPy array's memory as it
-    is, and gathers from memory it finds unaligned as separate loads instead of packet loads."""
-    buffer = np.empty(a.nbytes + alignment, np.uint8)
-    start = -buffer.ctypes.data % alignment
-    out = buffer[start:start + a.nbytes].view(a.dtype)
+def _aligned(a: np.ndarray) -> np.ndarray:
+    """A copy of `a` (flattened) starting on a 64-byte boundary (as _aligned_empty)."""
+    out = _aligned_empty(a.size, a.dtype)
     out[:] = a.ravel()
     return out
+
+
+def _aligned_empty(shape: int | tuple[int, ...], dtype, alignment: int = 64) -> np.ndarray:
+    """An uninitialised C-contiguous array starting on an `alignment`-byte boundary. Dr.Jit wraps a NumPy
+    array's memory as it is, and gathers from memory it finds unaligned as separate loads instead of
+    packet loads."""
+    dtype = np.dtype(dtype)
+    size = int(np.prod(shape)) * dtype.itemsize
+    buffer = np.empty(size + alignment, np.uint8)
+    start = -buffer.ctypes.data % alignment
+    return buffer[start:start + size].view(dtype).reshape(shape)

@@ -14,7 +14,7 @@ from .bvh import BVHKernel
 from .bvh_cache import cached_layout
 from ..meshes import MeshError, read_obj, read_ply, vertex_normals
 from ..serialized import read_serialized
-from ..jit import INF, Array3f, Bool, Float, UInt32, vec3
+from ..jit import HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, vec3
 from ..sampling import square_to_uniform_triangle
 from .base import ShapeArgs, ShapeSet, exclude
 from .triangle import ray_triangle
@@ -101,7 +101,8 @@ class MeshSet(ShapeSet):
 
     def __init__(self, meshes: list[Mesh], base: int, bvh_threshold: int = BVH_THRESHOLD):
         super().__init__(meshes, base)
-        self.tri_vertices = np.concatenate([m.vertices[m.faces] for m in meshes]) if meshes else np.zeros((0, 3, 3))
+        self.tri_vertices = np.concatenate([np.take(m.vertices, m.faces, axis=0) for m in meshes]) if meshes \
+            else np.zeros((0, 3, 3))
         self.smooth = any(m.normals is not None for m in meshes)
         self.bvh = BVHKernel(self.tri_vertices, base, cached_layout(self.tri_vertices)) \
             if self.count > bvh_threshold else None
@@ -120,9 +121,10 @@ class MeshSet(ShapeSet):
 
     @cached_property
     def _face_normals(self) -> np.ndarray:
-        v = self.tri_vertices
-        n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        e = self.frames()[:, 1:]
+        n = np.cross(e[:, 0], e[:, 1])
+        length = np.sqrt(n[:, 0] ** 2 + n[:, 1] ** 2 + n[:, 2] ** 2)    # np.linalg.norm's sum, in this order
+        return n / np.maximum(length, 1e-300)[:, None]
 
     def normals(self) -> np.ndarray:
         """(triangles, 3) unit geometric normals (right-handed in the corners' order)."""
@@ -140,10 +142,11 @@ class MeshSet(ShapeSet):
 
     def _corner_normals(self) -> np.ndarray:
         """(triangles, 3, 3) shading normals at each triangle's corners (its face normal on flat meshes)."""
-        out, flat = np.zeros((max(self.count, 1), 3, 3)), self._face_normals
+        out = np.zeros((max(self.count, 1), 3, 3), HOST_FLOAT)
         for m, lo, n in self.shape_primitives():
             tri = slice(lo - self.base, lo - self.base + n)
-            out[tri] = m.normals[m.faces] if m.normals is not None else flat[tri][:, None, :]
+            out[tri] = np.take(m.normals.astype(HOST_FLOAT), m.faces, axis=0) if m.normals is not None \
+                else self._face_normals[tri][:, None, :]
         return out
 
     def build_uvs(self) -> None:
@@ -154,11 +157,16 @@ class MeshSet(ShapeSet):
             uvs[lo - self.base:lo - self.base + n] = m.uvs[m.faces] if m.uvs is not None else [[0, 0], [1, 0], [0, 1]]
         self.corner_uvs = Float(uvs.ravel())
 
-    def frames(self) -> np.ndarray:
+    @cached_property
+    def _frames(self) -> np.ndarray:
         tv = self.tri_vertices
-        out = tv.copy()
-        out[:, 1:] -= tv[:, :1]
+        out = np.empty_like(tv)
+        out[:, 0] = tv[:, 0]
+        np.subtract(tv[:, 1:], tv[:, :1], out=out[:, 1:])
         return out
+
+    def frames(self) -> np.ndarray:
+        return self._frames
 
     def culling_planes(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
         if self.bvh is not None:   # BVH triangles are all tested; only the unrolled ones are worth culling
