@@ -61,7 +61,7 @@ def assert_same_mesh(a, b):
 @pytest.mark.parametrize("seed", range(12))
 def test_files_parse_in_bulk_to_the_same_mesh(seed):
     text = _random_obj(seed)
-    assert_same_mesh(_parse_bulk(text), _parse_statements(text, Path("x.obj")))
+    assert_same_mesh(_parse_bulk(text.encode()), _parse_statements(text, Path("x.obj")))
 
 
 @pytest.mark.parametrize("form", ["{0}", "{0}//{0}", "{0}/{0}/{0}", "{0}/{0}"])
@@ -75,7 +75,7 @@ def test_exported_meshes_parse_in_bulk_to_the_same_mesh(form, quads):
     lines = [f"v {x:.7f} {y:.7f} {z:.7f}\nvt {x:.4f} {y:.4f}\nvn {z:.6f} {x:.6f} {y:.6f}" for x, y, z in vertices]
     lines += ["f " + " ".join(form.format(i) for i in face) for face in faces + 1]
     text = "\n".join(lines) + "\n"
-    assert_same_mesh(_parse_bulk(text), _parse_statements(text, Path("x.obj")))
+    assert_same_mesh(_parse_bulk(text.encode()), _parse_statements(text, Path("x.obj")))
 
 
 @pytest.mark.parametrize("change", [
@@ -101,7 +101,7 @@ def test_exported_meshes_parse_in_bulk_to_the_same_mesh(form, quads):
 def test_anything_else_goes_statement_by_statement(change):
     text = change(_random_obj(0))
     assert text != _random_obj(0)
-    assert _parse_bulk(text) is None
+    assert _parse_bulk(text.encode()) is None
 
 
 MUTATIONS = list("0123456789-+/ \t\nfvnt#.eE_x") + ["\r", "\x0c", "\x1f", "\u00e9", "nan", "//", "f ", "v ", "vn ",
@@ -123,7 +123,7 @@ def test_mutated_files_parse_in_bulk_to_the_same_mesh_or_not_at_all(seed):
             lines = _parse_statements(text, Path("x.obj"))
         except MeshError:
             lines = None
-        bulk = _parse_bulk(text)
+        bulk = _parse_bulk(text.encode())
         if bulk is not None:
             assert_same_mesh(bulk, lines)
 
@@ -131,7 +131,7 @@ def test_mutated_files_parse_in_bulk_to_the_same_mesh_or_not_at_all(seed):
 @pytest.mark.parametrize("mesh", sorted(SCENES.glob("*/*.obj")), ids=lambda p: p.name)
 def test_project_meshes_parse_in_bulk_to_the_same_mesh(mesh):
     text = mesh.read_text()
-    assert_same_mesh(_parse_bulk(text), _parse_statements(text, mesh))
+    assert_same_mesh(_parse_bulk(text.encode()), _parse_statements(text, mesh))
 
 
 def test_vertices_are_keyed_by_texture_coordinates_too_as_in_mitsuba(tmp_path, mi):
