@@ -116,10 +116,10 @@ def _parse_bulk(text: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]
     if not text.endswith(b"\n"):
         text += b"\n"
     data = np.frombuffer(text, np.uint8)
-    # control characters other than tab split lines or words in Python's str methods
-    if np.count_nonzero(data < 32) != text.count(b"\n") + text.count(b"\t"):
-        return None
     ends = np.flatnonzero(data == 10)
+    # control characters other than tab split lines or words in Python's str methods
+    if np.count_nonzero(data < 32) != len(ends) + np.count_nonzero(data == 9):
+        return None
     starts = np.concatenate(([0], ends[:-1] + 1))
     length = ends - starts
     c0, c1, c2 = (np.take(data, starts + k, mode="clip") for k in range(3))   # clip: past the end, the last
@@ -174,7 +174,9 @@ def _face_corners(lines: bytes) -> tuple[np.ndarray, ...] | None:
     """The face statements (whole lines) to the corners per face and each corner's OBJ indices p, t, n
     (_ABSENT where it names none; None where no corner names one), or None unless every corner is "p",
     "p/t", "p/t/n" or "p//n" of plain integers."""
-    if lines.translate(None, b"f0123456789-/ \t\n") or lines.count(b"f") != lines.count(b"\n"):
+    faces = np.frombuffer(lines, np.uint8)
+    newlines = np.flatnonzero(faces == 10)
+    if lines.translate(None, b"f0123456789-/ \t\n") or np.count_nonzero(faces == ord("f")) != len(newlines):
         return None                                            # other bytes, or "f" past the keyword
     lines = lines.replace(b"f", b" ")
     faces = np.frombuffer(lines, np.uint8)
@@ -182,7 +184,7 @@ def _face_corners(lines: bytes) -> tuple[np.ndarray, ...] | None:
     first = np.flatnonzero(space[:-1] & ~space[1:]) + 1       # each corner's first byte
     if not len(first):
         return None
-    per_face = _per_line(first, np.flatnonzero(faces == 10))
+    per_face = _per_line(first, newlines)
     slashes = doubled = None
     if b"/" in lines:
         slash = faces == 47
@@ -283,33 +285,33 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     rows, corners = np.ascontiguousarray(vertices.T), np.ascontiguousarray(faces.T)
     corner = [np.take(rows, corners[i], axis=1) for i in range(3)]
     edge = [corner[(i + 1) % 3] - corner[i] for i in range(3)]           # c0 -> c1, c1 -> c2, c2 -> c0
-    n = _cross(edge[2], edge[0])                                         # = edge[0] x -edge[2], exactly
-    length = _length(n)
+    n = cross_rows(edge[2], edge[0])                                         # = edge[0] x -edge[2], exactly
+    length = length_rows(n)
     n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
-    unit = [e / np.maximum(_length(e), 1e-30) for e in edge]
+    unit = [e / np.maximum(length_rows(e), 1e-30) for e in edge]
     # the angle at corner i, between its edges to c(i+1) and to c(i+2) (the latter is -edge[i - 1])
     weighted = np.empty((3, 3, len(faces)))                              # coordinate, corner, face
     for i in range(3):
-        np.multiply(n, np.arccos(np.clip(-_dot(unit[i], unit[i - 1]), -1, 1)), out=weighted[:, i])
+        np.multiply(n, np.arccos(np.clip(-dot_rows(unit[i], unit[i - 1]), -1, 1)), out=weighted[:, i])
     index = corners.ravel()
     out = np.stack([np.bincount(index, weighted[k].ravel(), minlength=len(vertices)) for k in range(3)])
-    length = _length(out)
+    length = length_rows(out)
     return np.ascontiguousarray(np.divide(out, length, out=np.zeros_like(out), where=length > 0).T)
 
 
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def dot_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Dot products of coordinate rows (3, n)."""
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Cross products of coordinate rows (3, n)."""
     return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
-def _length(a: np.ndarray) -> np.ndarray:
+def length_rows(a: np.ndarray) -> np.ndarray:
     """Euclidean lengths (1, n) of coordinate rows (3, n)."""
-    return np.sqrt(_dot(a, a))[None]
+    return np.sqrt(dot_rows(a, a))[None]
 
 
 def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:

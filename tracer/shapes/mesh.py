@@ -12,7 +12,7 @@ import numpy as np
 from .. import transform
 from .bvh import BVHKernel
 from .bvh_cache import cached_layout
-from ..meshes import MeshError, read_obj, read_ply, vertex_normals
+from ..meshes import MeshError, cross_rows, length_rows, read_obj, read_ply, vertex_normals
 from ..serialized import read_serialized
 from ..jit import HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, vec3
 from ..sampling import square_to_uniform_triangle
@@ -121,10 +121,9 @@ class MeshSet(ShapeSet):
 
     @cached_property
     def _face_normals(self) -> np.ndarray:
-        e = self.frames()[:, 1:]
-        n = np.cross(e[:, 0], e[:, 1])
-        length = np.sqrt(n[:, 0] ** 2 + n[:, 1] ** 2 + n[:, 2] ** 2)    # np.linalg.norm's sum, in this order
-        return n / np.maximum(length, 1e-300)[:, None]
+        v = self.tri_vertices.transpose(1, 2, 0)     # corner, coordinate, triangle
+        n = cross_rows(v[1] - v[0], v[2] - v[0])
+        return (n / np.maximum(length_rows(n), 1e-300)).T
 
     def normals(self) -> np.ndarray:
         """(triangles, 3) unit geometric normals (right-handed in the corners' order)."""
@@ -157,16 +156,12 @@ class MeshSet(ShapeSet):
             uvs[lo - self.base:lo - self.base + n] = m.uvs[m.faces] if m.uvs is not None else [[0, 0], [1, 0], [0, 1]]
         self.corner_uvs = Float(uvs.ravel())
 
-    @cached_property
-    def _frames(self) -> np.ndarray:
-        tv = self.tri_vertices
-        out = np.empty_like(tv)
-        out[:, 0] = tv[:, 0]
-        np.subtract(tv[:, 1:], tv[:, :1], out=out[:, 1:])
-        return out
-
     def frames(self) -> np.ndarray:
-        return self._frames
+        tv = self.tri_vertices
+        out = np.empty(tv.shape, HOST_FLOAT)
+        out[:, 0] = tv[:, 0]
+        np.subtract(tv[:, 1:], tv[:, :1], out=out[:, 1:])     # in float64, rounded once
+        return out
 
     def culling_planes(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
         if self.bvh is not None:   # BVH triangles are all tested; only the unrolled ones are worth culling
