@@ -128,9 +128,14 @@ class SceneGeometry:
         lights = np.array([light.position for light in self.points]).reshape(-1, 3)   # shadow rays end there too
         eps = 1e-6 * self.scene.extent()
         keep = set(range(self.curved_base, self.n_prims))
+        sets = [s for s in self.shape_sets if s.count]
         for shapes in self.shape_sets:
             for i, p0, n in shapes.culling_planes():
-                side = np.concatenate([(lights - p0) @ n] + [s.sides(p0, n) for s in self.shape_sets if s.count])
+                light = (lights - p0) @ n
+                lo, hi = zip(*(s.side_bounds(p0, n) for s in sets))
+                if min([*lo, *light]) >= -eps or max([*hi, *light]) <= eps:   # decided without every side
+                    continue
+                side = np.concatenate([light] + [s.sides(p0, n) for s in sets])
                 if not (np.all(side >= -eps) or np.all(side <= eps)):
                     keep.add(i)
         return keep

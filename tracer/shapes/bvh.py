@@ -341,12 +341,11 @@ class BVHKernel:
         self.root = int((tables.nodes[0, 3::4] != 0) @ (1 << np.arange(WIDTH)))   # the root row's link (full slots: links > 0)
         self.stack_size = tables.stack_size
         v = np.take(tri_vertices, tables.order, axis=0)
-        tris = _aligned_empty((len(v), 12), _FLOAT)   # rows (v0, prim, v1 - v0, 0, v2 - v0, 0)
+        tris = _aligned_zeros((len(v), 12), _FLOAT)   # rows (v0, prim, v1 - v0, 0, v2 - v0, 0)
         tris[:, 0:3] = v[:, 0]
         np.subtract(v[:, 1], v[:, 0], out=tris[:, 4:7])   # in float64, rounded once
         np.subtract(v[:, 2], v[:, 0], out=tris[:, 8:11])
         tris[:, 3] = (tables.order + prim_base).astype(_UINT).view(_FLOAT)
-        tris[:, 7] = tris[:, 11] = 0
         self.tris = Float(tris.ravel())
 
     def _child(self, x: ArrayXu, k: int, slope: Array3f, offset: Array3f,
@@ -465,18 +464,18 @@ def _max(a, b):
 
 
 def _aligned(a: np.ndarray) -> np.ndarray:
-    """A copy of `a` (flattened) starting on a 64-byte boundary (as _aligned_empty)."""
-    out = _aligned_empty(a.size, a.dtype)
+    """A copy of `a` (flattened) starting on a 64-byte boundary (as _aligned_zeros)."""
+    out = _aligned_zeros(a.size, a.dtype)
     out[:] = a.ravel()
     return out
 
 
-def _aligned_empty(shape: int | tuple[int, ...], dtype, alignment: int = 64) -> np.ndarray:
-    """An uninitialised C-contiguous array starting on an `alignment`-byte boundary. Dr.Jit wraps a NumPy
+def _aligned_zeros(shape: int | tuple[int, ...], dtype, alignment: int = 64) -> np.ndarray:
+    """A C-contiguous array of zeros starting on an `alignment`-byte boundary. Dr.Jit wraps a NumPy
     array's memory as it is, and gathers from memory it finds unaligned as separate loads instead of
     packet loads."""
     dtype = np.dtype(dtype)
     size = int(np.prod(shape)) * dtype.itemsize
-    buffer = np.empty(size + alignment, np.uint8)
+    buffer = np.zeros(size + alignment, np.uint8)   # calloc: pages zeroed as first touched
     start = -buffer.ctypes.data % alignment
     return buffer[start:start + size].view(dtype).reshape(shape)

@@ -171,6 +171,20 @@ class MeshSet(ShapeSet):
     def sides(self, p0: np.ndarray, n: np.ndarray) -> np.ndarray:
         return (self._corners - p0) @ n
 
+    def side_bounds(self, p0: np.ndarray, n: np.ndarray) -> tuple[float, float]:
+        """Bounds on sides(p0, n) from the vertices' bounding box, without computing them: widened by far more
+        than sides' rounding error (a few ulp of the terms' magnitudes), so decisions on them are sides' own."""
+        d = (self._box - p0) * n                   # each coordinate's extreme terms
+        margin = 1e-12 * np.abs(d).max(0).sum()
+        return d.min(0).sum() - margin, d.max(0).sum() + margin
+
+    @cached_property
+    def _box(self) -> np.ndarray:
+        """(2, 3) least and greatest coordinates of the meshes' vertices (column by column: faster on (n, 3))."""
+        lo = [[m.vertices[:, k].min() for k in range(3)] for m in self.shapes]
+        hi = [[m.vertices[:, k].max() for k in range(3)] for m in self.shapes]
+        return np.array([np.min(lo, axis=0), np.max(hi, axis=0)])
+
     def describe(self) -> str:
         return f"{self.count} triangles (Moeller-Trumbore, {'in a BVH' if self.bvh is not None else 'brute force'})"
 
