@@ -7,6 +7,7 @@ kind, a smooth mesh or a second light the scene lacks adds no instruction.
 """
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import drjit as dr
@@ -128,16 +129,19 @@ class SceneGeometry:
         lights = np.array([light.position for light in self.points]).reshape(-1, 3)   # shadow rays end there too
         eps = 1e-6 * self.scene.extent()
         keep = set(range(self.curved_base, self.n_prims))
-        sets = [s for s in self.shape_sets if s.count]
+        sets = sorted((s for s in self.shape_sets if s.count), key=lambda s: s.count)   # the cheapest sides first
         for shapes in self.shape_sets:
             for i, p0, n in shapes.culling_planes():
                 light = (lights - p0) @ n
                 lo, hi = zip(*(s.side_bounds(p0, n) for s in sets))
-                if min([*lo, *light]) >= -eps or max([*hi, *light]) <= eps:   # decided without every side
+                if min([*lo, *light]) >= -eps or max([*hi, *light]) <= eps:   # one side, from the bounds
                     continue
-                side = np.concatenate([light] + [s.sides(p0, n) for s in sets])
-                if not (np.all(side >= -eps) or np.all(side <= eps)):
-                    keep.add(i)
+                below = above = False           # not every side >= -eps, not every side <= eps (so far)
+                for side in itertools.chain([light], (s.sides(p0, n) for s in sets)):
+                    below, above = below or not np.all(side >= -eps), above or not np.all(side <= eps)
+                    if below and above:
+                        keep.add(i)
+                        break
         return keep
 
     # ---- ray queries ------------------------------------------------------------------------------
