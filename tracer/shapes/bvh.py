@@ -329,22 +329,31 @@ def layout(tri_vertices: np.ndarray) -> Layout:
     return Layout(nodes, tree.order, wide, np.array([tree.lo[0], tree.hi[0]], np.float64), stack_size)
 
 
+def triangle_frames(tri_vertices: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rows v0, v1 - v0, v2 - v0 of (n, 3, 3) float64 triangle vertices, in Float's type (each
+    difference taken in float64 and rounded once)."""
+    out = np.empty(tri_vertices.shape, _FLOAT)
+    out[:, 0] = tri_vertices[:, 0]
+    np.subtract(tri_vertices[:, 1:], tri_vertices[:, :1], out=out[:, 1:])
+    return out
+
+
 class BVHKernel:
     """The BVH's inner nodes and triangles on the device, and their traversal; triangle ids are offset by
-    `prim_base`. `tables`: the triangles' Layout if already built (shapes.bvh_cache), else built here."""
+    `prim_base`. `tables`: the triangles' Layout if already built (shapes.bvh_cache), else built here;
+    `frames`: their triangle_frames if already computed."""
 
-    def __init__(self, tri_vertices: np.ndarray, prim_base: int, tables: Layout | None = None):
+    def __init__(self, tri_vertices: np.ndarray, prim_base: int, tables: Layout | None = None,
+                 frames: np.ndarray | None = None):
         tables = layout(tri_vertices) if tables is None else tables
+        frames = triangle_frames(tri_vertices) if frames is None else frames
         self.grid = BoxGrid(*tables.root)
         self.rows = tables.rows
         self.nodes = UInt32(_aligned(tables.nodes))
         self.root = int((tables.nodes[0, 3::4] != 0) @ (1 << np.arange(WIDTH)))   # the root row's link (full slots: links > 0)
         self.stack_size = tables.stack_size
-        v = np.take(tri_vertices, tables.order, axis=0)
-        tris = _aligned_zeros((len(v), 12), _FLOAT)   # rows (v0, prim, v1 - v0, 0, v2 - v0, 0)
-        tris[:, 0:3] = v[:, 0]
-        np.subtract(v[:, 1], v[:, 0], out=tris[:, 4:7])   # in float64, rounded once
-        np.subtract(v[:, 2], v[:, 0], out=tris[:, 8:11])
+        tris = _aligned_zeros((len(frames), 12), _FLOAT)   # rows (v0, prim, v1 - v0, 0, v2 - v0, 0)
+        tris.reshape(-1, 3, 4)[:, :, :3] = np.take(frames, tables.order, axis=0)
         tris[:, 3] = (tables.order + prim_base).astype(_UINT).view(_FLOAT)
         self.tris = Float(tris.ravel())
 

@@ -10,7 +10,7 @@ import drjit as dr
 import numpy as np
 
 from .. import transform
-from .bvh import BVHKernel
+from .bvh import BVHKernel, triangle_frames
 from .bvh_cache import cached_layout
 from ..meshes import MeshError, cross_rows, length_rows, read_obj, read_ply, vertex_normals
 from ..serialized import read_serialized
@@ -104,7 +104,7 @@ class MeshSet(ShapeSet):
         self.tri_vertices = np.concatenate([np.take(m.vertices, m.faces, axis=0) for m in meshes]) if meshes \
             else np.zeros((0, 3, 3))
         self.smooth = any(m.normals is not None for m in meshes)
-        self.bvh = BVHKernel(self.tri_vertices, base, cached_layout(self.tri_vertices)) \
+        self.bvh = BVHKernel(self.tri_vertices, base, cached_layout(self.tri_vertices), self._frames) \
             if self.count > bvh_threshold else None
         self.corner_normals = Float(self._corner_normals().ravel())
         self.corner_uvs = None
@@ -156,12 +156,12 @@ class MeshSet(ShapeSet):
             uvs[lo - self.base:lo - self.base + n] = m.uvs[m.faces] if m.uvs is not None else [[0, 0], [1, 0], [0, 1]]
         self.corner_uvs = Float(uvs.ravel())
 
+    @cached_property
+    def _frames(self) -> np.ndarray:
+        return triangle_frames(self.tri_vertices)
+
     def frames(self) -> np.ndarray:
-        tv = self.tri_vertices
-        out = np.empty(tv.shape, HOST_FLOAT)
-        out[:, 0] = tv[:, 0]
-        np.subtract(tv[:, 1:], tv[:, :1], out=out[:, 1:])     # in float64, rounded once
-        return out
+        return self._frames
 
     def culling_planes(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
         if self.bvh is not None:   # BVH triangles are all tested; only the unrolled ones are worth culling
