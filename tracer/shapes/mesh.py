@@ -104,8 +104,9 @@ class MeshSet(ShapeSet):
         self.tri_vertices = np.concatenate([np.take(m.vertices, m.faces, axis=0) for m in meshes]) if meshes \
             else np.zeros((0, 3, 3))
         self.smooth = any(m.normals is not None for m in meshes)
-        self.bvh = BVHKernel(self.tri_vertices, base, cached_layout(self.tri_vertices), self._frames) \
-            if self.count > bvh_threshold else None
+        source = [a for m in meshes for a in (m.vertices, m.faces)]   # what the triangles are made of
+        self.bvh = BVHKernel(self.tri_vertices, base, cached_layout(self.tri_vertices, source=source),
+                             self._frames) if self.count > bvh_threshold else None
         self.corner_normals = Float(self._corner_normals().ravel())
         self.corner_uvs = None
 
