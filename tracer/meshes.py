@@ -282,8 +282,7 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
     Computed on coordinate rows (x, y, z of every triangle corner); a vertex's sum runs over the faces' first
     corners in face order, then their second, then their third."""
-    rows, corners = np.ascontiguousarray(vertices.T), np.ascontiguousarray(faces.T)
-    corner = [np.take(rows, corners[i], axis=1) for i in range(3)]
+    corner = corner_rows(vertices, faces)
     edge = [corner[(i + 1) % 3] - corner[i] for i in range(3)]           # c0 -> c1, c1 -> c2, c2 -> c0
     n = cross_rows(edge[2], edge[0])                                         # = edge[0] x -edge[2], exactly
     length = length_rows(n)
@@ -293,10 +292,16 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     weighted = np.empty((3, 3, len(faces)))                              # coordinate, corner, face
     for i in range(3):
         np.multiply(n, np.arccos(np.clip(-dot_rows(unit[i], unit[i - 1]), -1, 1)), out=weighted[:, i])
-    index = corners.ravel()
+    index = faces.T.ravel()
     out = np.stack([np.bincount(index, weighted[k].ravel(), minlength=len(vertices)) for k in range(3)])
     length = length_rows(out)
     return np.ascontiguousarray(np.divide(out, length, out=np.zeros_like(out), where=length > 0).T)
+
+
+def corner_rows(vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
+    """The coordinate rows (3, triangles) of the triangles' first, second and third corners."""
+    rows, corners = np.ascontiguousarray(vertices.T), np.ascontiguousarray(faces.T)
+    return [np.take(rows, corners[i], axis=1) for i in range(3)]
 
 
 def dot_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -12,7 +12,7 @@ import numpy as np
 from .. import transform
 from .bvh import BVHKernel, triangle_frames
 from .bvh_cache import cached_layout
-from ..meshes import MeshError, cross_rows, length_rows, read_obj, read_ply, vertex_normals
+from ..meshes import MeshError, corner_rows, cross_rows, length_rows, read_obj, read_ply, vertex_normals
 from ..serialized import read_serialized
 from ..jit import HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, vec3
 from ..sampling import square_to_uniform_triangle
@@ -106,7 +106,7 @@ class MeshSet(ShapeSet):
         self.smooth = any(m.normals is not None for m in meshes)
         source = [a for m in meshes for a in (m.vertices, m.faces)]   # what the triangles are made of
         self.bvh = BVHKernel(self.tri_vertices, base, cached_layout(self.tri_vertices, source=source),
-                             self._frames) if self.count > bvh_threshold else None
+                             self.frames()) if self.count > bvh_threshold else None
         self.corner_normals = Float(self._corner_normals().ravel())
         self.corner_uvs = None
 
@@ -121,14 +121,17 @@ class MeshSet(ShapeSet):
             lo += len(m.faces)
 
     @cached_property
-    def _face_normals(self) -> np.ndarray:
-        v = self.tri_vertices.transpose(1, 2, 0)     # corner, coordinate, triangle
-        n = cross_rows(v[1] - v[0], v[2] - v[0])
-        return (n / np.maximum(length_rows(n), 1e-300)).T
+    def _frames_normals(self) -> tuple[np.ndarray, np.ndarray]:
+        """The triangles' frames (bvh.triangle_frames) and unit geometric normals (right-handed in the
+        corners' order), from their corners' coordinate rows."""
+        rows = [corner_rows(m.vertices, m.faces) for m in self.shapes] or [[np.zeros((3, 0))] * 3]
+        c0, c1, c2 = (np.concatenate([r[i] for r in rows], axis=1) for i in range(3))
+        n = cross_rows(c1 - c0, c2 - c0)
+        return triangle_frames([c0, c1, c2]), (n / np.maximum(length_rows(n), 1e-300)).T
 
     def normals(self) -> np.ndarray:
         """(triangles, 3) unit geometric normals (right-handed in the corners' order)."""
-        return self._face_normals
+        return self._frames_normals[1]
 
     @cached_property
     def _corners(self) -> np.ndarray:
@@ -146,7 +149,7 @@ class MeshSet(ShapeSet):
         for m, lo, n in self.shape_primitives():
             tri = slice(lo - self.base, lo - self.base + n)
             out[tri] = np.take(m.normals.astype(HOST_FLOAT), m.faces, axis=0) if m.normals is not None \
-                else self._face_normals[tri][:, None, :]
+                else self.normals()[tri][:, None, :]
         return out
 
     def build_uvs(self) -> None:
@@ -157,17 +160,13 @@ class MeshSet(ShapeSet):
             uvs[lo - self.base:lo - self.base + n] = m.uvs[m.faces] if m.uvs is not None else [[0, 0], [1, 0], [0, 1]]
         self.corner_uvs = Float(uvs.ravel())
 
-    @cached_property
-    def _frames(self) -> np.ndarray:
-        return triangle_frames(self.tri_vertices)
-
     def frames(self) -> np.ndarray:
-        return self._frames
+        return self._frames_normals[0]
 
     def culling_planes(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
         if self.bvh is not None:   # BVH triangles are all tested; only the unrolled ones are worth culling
             return []
-        return [(self.base + j, v[0], n) for j, (v, n) in enumerate(zip(self.tri_vertices, self._face_normals))]
+        return [(self.base + j, v[0], n) for j, (v, n) in enumerate(zip(self.tri_vertices, self.normals()))]
 
     def sides(self, p0: np.ndarray, n: np.ndarray) -> np.ndarray:
         return (self._corners - p0) @ n
