@@ -282,25 +282,30 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
     Computed on coordinate rows (x, y, z of every triangle corner); a vertex's sum runs over the faces' first
     corners in face order, then their second, then their third."""
-    corner = corner_rows(vertices, faces)
+    corners = np.ascontiguousarray(faces.T)
+    corner = corner_rows(vertices, corners)
     edge = [corner[(i + 1) % 3] - corner[i] for i in range(3)]           # c0 -> c1, c1 -> c2, c2 -> c0
-    n = cross_rows(edge[2], edge[0])                                         # = edge[0] x -edge[2], exactly
+    n = cross_rows(edge[2], edge[0])                                     # = edge[0] x -edge[2], exactly
     length = length_rows(n)
     n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
-    unit = [e / np.maximum(length_rows(e), 1e-30) for e in edge]
+    for e in edge:                                                       # to unit vectors, in place
+        np.divide(e, np.maximum(length_rows(e), 1e-30), out=e)
     # the angle at corner i, between its edges to c(i+1) and to c(i+2) (the latter is -edge[i - 1])
     weighted = np.empty((3, 3, len(faces)))                              # coordinate, corner, face
     for i in range(3):
-        np.multiply(n, np.arccos(np.clip(-dot_rows(unit[i], unit[i - 1]), -1, 1)), out=weighted[:, i])
-    index = faces.T.ravel()
+        cos = dot_rows(edge[i], edge[i - 1])
+        np.negative(cos, out=cos)
+        np.multiply(n, np.arccos(np.clip(cos, -1, 1, out=cos), out=cos), out=weighted[:, i])
+    index = corners.ravel()
     out = np.stack([np.bincount(index, weighted[k].ravel(), minlength=len(vertices)) for k in range(3)])
     length = length_rows(out)
     return np.ascontiguousarray(np.divide(out, length, out=np.zeros_like(out), where=length > 0).T)
 
 
-def corner_rows(vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
-    """The coordinate rows (3, triangles) of the triangles' first, second and third corners."""
-    rows, corners = np.ascontiguousarray(vertices.T), np.ascontiguousarray(faces.T)
+def corner_rows(vertices: np.ndarray, corners: np.ndarray) -> list[np.ndarray]:
+    """The coordinate rows (3, triangles) of the triangles' first, second and third corners; `corners`: the
+    faces' vertex indices as rows (3, triangles)."""
+    rows = np.ascontiguousarray(vertices.T)
     return [np.take(rows, corners[i], axis=1) for i in range(3)]
 
 

@@ -124,7 +124,7 @@ class MeshSet(ShapeSet):
     def _frames_normals(self) -> tuple[np.ndarray, np.ndarray]:
         """The triangles' frames (bvh.triangle_frames) and unit geometric normals (right-handed in the
         corners' order), from their corners' coordinate rows."""
-        rows = [corner_rows(m.vertices, m.faces) for m in self.shapes] or [[np.zeros((3, 0))] * 3]
+        rows = [corner_rows(m.vertices, m.faces.T) for m in self.shapes] or [[np.zeros((3, 0))] * 3]
         c0, c1, c2 = (np.concatenate([r[i] for r in rows], axis=1) for i in range(3))
         n = cross_rows(c1 - c0, c2 - c0)
         return triangle_frames([c0, c1, c2]), (n / np.maximum(length_rows(n), 1e-300)).T
