@@ -305,7 +305,7 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 def corner_rows(vertices: np.ndarray, corners: np.ndarray) -> list[np.ndarray]:
     """The coordinate rows (3, triangles) of the triangles' first, second and third corners; `corners`: the
     faces' vertex indices as rows (3, triangles)."""
-    rows = np.ascontiguousarray(vertices.T)
+    rows, corners = np.ascontiguousarray(vertices.T), np.ascontiguousarray(corners)
     return [np.take(rows, corners[i], axis=1) for i in range(3)]
 
 

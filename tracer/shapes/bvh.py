@@ -329,11 +329,10 @@ def layout(tri_vertices: np.ndarray) -> Layout:
     return Layout(nodes, tree.order, wide, np.array([tree.lo[0], tree.hi[0]], np.float64), stack_size)
 
 
-def triangle_frames(corners: list[np.ndarray] | np.ndarray) -> np.ndarray:
-    """(n, 3, 3) rows v0, v1 - v0, v2 - v0 of triangles, in Float's type, from their corners' (3, n) float64
-    coordinate rows (each difference taken in float64 and rounded once)."""
-    c0, c1, c2 = corners
-    return np.stack([c0, c1 - c0, c2 - c0]).transpose(2, 0, 1).astype(_FLOAT, order="C")
+def triangle_frames(v0: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rows v0, e1 = v1 - v0, e2 = v2 - v0 of triangles in Float's type, from their (3, n) float64
+    coordinate rows (so each difference is rounded once)."""
+    return np.stack([v0, e1, e2]).transpose(2, 0, 1).astype(_FLOAT, order="C")
 
 
 class BVHKernel:
@@ -344,7 +343,9 @@ class BVHKernel:
     def __init__(self, tri_vertices: np.ndarray, prim_base: int, tables: Layout | None = None,
                  frames: np.ndarray | None = None):
         tables = layout(tri_vertices) if tables is None else tables
-        frames = triangle_frames(tri_vertices.transpose(1, 2, 0)) if frames is None else frames
+        if frames is None:
+            v = tri_vertices.transpose(1, 2, 0)
+            frames = triangle_frames(v[0], v[1] - v[0], v[2] - v[0])
         self.grid = BoxGrid(*tables.root)
         self.rows = tables.rows
         self.nodes = UInt32(_aligned(tables.nodes))

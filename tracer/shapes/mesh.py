@@ -124,10 +124,14 @@ class MeshSet(ShapeSet):
     def _frames_normals(self) -> tuple[np.ndarray, np.ndarray]:
         """The triangles' frames (bvh.triangle_frames) and unit geometric normals (right-handed in the
         corners' order), from their corners' coordinate rows."""
-        rows = [corner_rows(m.vertices, m.faces.T) for m in self.shapes] or [[np.zeros((3, 0))] * 3]
-        c0, c1, c2 = (np.concatenate([r[i] for r in rows], axis=1) for i in range(3))
-        n = cross_rows(c1 - c0, c2 - c0)
-        return triangle_frames([c0, c1, c2]), (n / np.maximum(length_rows(n), 1e-300)).T
+        if not self.shapes:
+            return np.zeros((0, 3, 3), HOST_FLOAT), np.zeros((0, 3))
+        first = np.cumsum([0] + [len(m.vertices) for m in self.shapes[:-1]])     # each mesh's first vertex
+        vertices = np.concatenate([m.vertices for m in self.shapes])
+        c0, c1, c2 = corner_rows(vertices, np.concatenate([m.faces + k for m, k in zip(self.shapes, first)]).T)
+        e1, e2 = c1 - c0, c2 - c0
+        n = cross_rows(e1, e2)
+        return triangle_frames(c0, e1, e2), (n / np.maximum(length_rows(n), 1e-300)).T
 
     def normals(self) -> np.ndarray:
         """(triangles, 3) unit geometric normals (right-handed in the corners' order)."""
