@@ -101,8 +101,12 @@ class MeshSet(ShapeSet):
 
     def __init__(self, meshes: list[Mesh], base: int, bvh_threshold: int = BVH_THRESHOLD):
         super().__init__(meshes, base)
-        self.tri_vertices = np.concatenate([np.take(m.vertices, m.faces, axis=0) for m in meshes]) if meshes \
-            else np.zeros((0, 3, 3))
+        # every mesh's vertices, and faces numbering them
+        first = np.cumsum([0] + [len(m.vertices) for m in meshes])
+        self._vertices = np.concatenate([m.vertices for m in meshes]) if meshes else np.zeros((0, 3))
+        self._faces = np.concatenate([m.faces + k for m, k in zip(meshes, first)]) if meshes \
+            else np.zeros((0, 3), np.int64)
+        self.tri_vertices = np.take(self._vertices, self._faces, axis=0)
         self.smooth = any(m.normals is not None for m in meshes)
         source = [a for m in meshes for a in (m.vertices, m.faces)]   # what the triangles are made of
         self.bvh = BVHKernel(self.tri_vertices, base, cached_layout(self.tri_vertices, source=source),
@@ -124,11 +128,7 @@ class MeshSet(ShapeSet):
     def _frames_normals(self) -> tuple[np.ndarray, np.ndarray]:
         """The triangles' frames (bvh.triangle_frames) and unit geometric normals (right-handed in the
         corners' order), from their corners' coordinate rows."""
-        if not self.shapes:
-            return np.zeros((0, 3, 3), HOST_FLOAT), np.zeros((0, 3))
-        first = np.cumsum([0] + [len(m.vertices) for m in self.shapes[:-1]])     # each mesh's first vertex
-        vertices = np.concatenate([m.vertices for m in self.shapes])
-        c0, c1, c2 = corner_rows(vertices, np.concatenate([m.faces + k for m, k in zip(self.shapes, first)]).T)
+        c0, c1, c2 = corner_rows(self._vertices, self._faces.T)
         e1, e2 = c1 - c0, c2 - c0
         n = cross_rows(e1, e2)
         return triangle_frames(c0, e1, e2), (n / np.maximum(length_rows(n), 1e-300)).T
