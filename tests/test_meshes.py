@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tracer.meshes import MeshError, _parse_bulk, _parse_statements, vertex_normals
+from tracer.meshes import MeshError, _parse_bulk, _parse_statements, read_obj, vertex_normals
 from validation.mesh_scene import torus
 
 from .test_mesh_formats import assert_same, mitsuba_mesh, ours
@@ -76,6 +76,19 @@ def test_exported_meshes_parse_in_bulk_to_the_same_mesh(form, quads):
     lines += ["f " + " ".join(form.format(i) for i in face) for face in faces + 1]
     text = "\n".join(lines) + "\n"
     assert_same_mesh(_parse_bulk(text.encode()), _parse_statements(text, Path("x.obj")))
+
+
+
+@pytest.mark.parametrize("newline", ["\r\n", "\r"])
+def test_windows_and_old_mac_line_ends_are_read_in_bulk_as_python_reads_text(tmp_path, monkeypatch, newline):
+    import tracer.meshes
+
+    text = _random_obj(3)
+    (tmp_path / "lf.obj").write_text(text)
+    (tmp_path / "other.obj").write_bytes(text.replace("\n", newline).encode())
+    expected = read_obj(tmp_path / "lf.obj")
+    monkeypatch.setattr(tracer.meshes, "_parse_statements", None)     # the bulk parser reads it
+    assert_same_mesh(read_obj(tmp_path / "other.obj"), expected)
 
 
 @pytest.mark.parametrize("change", [
