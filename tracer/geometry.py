@@ -83,7 +83,7 @@ class SceneGeometry:
     def _build_tables(self) -> None:
         n = max(self.n_prims, 1)  # an empty scene still needs a table to gather (masked off) from
         normals, material = np.zeros((n, 3), HOST_FLOAT), np.zeros(n, np.uint32)
-        radiance, light_pdf = np.zeros((n, 3)), np.zeros(n)
+        radiance, light_pdf = np.zeros((n, 3), HOST_FLOAT), np.zeros(n, HOST_FLOAT)
         for shapes in self.shape_sets:
             normals[shapes.base:shapes.base + shapes.count] = shapes.normals()
             for s, lo, count in shapes.shape_primitives():
