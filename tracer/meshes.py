@@ -316,7 +316,10 @@ def dot_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Cross products of coordinate rows (3, n)."""
-    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape), np.result_type(a, b))
+    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):     # written into one array, not stacked
+        np.subtract(a[j] * b[k], a[k] * b[j], out=out[i])
+    return out
 
 
 def length_rows(a: np.ndarray) -> np.ndarray:

@@ -332,7 +332,10 @@ def layout(tri_vertices: np.ndarray) -> Layout:
 def triangle_frames(v0: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
     """(n, 3, 3) rows v0, e1 = v1 - v0, e2 = v2 - v0 of triangles in Float's type, from their (3, n) float64
     coordinate rows (so each difference is rounded once)."""
-    return np.stack([v0, e1, e2]).transpose(2, 0, 1).astype(_FLOAT, order="C")
+    out = np.empty((v0.shape[1], 3, 3), _FLOAT)
+    for row, a in zip(out.transpose(1, 2, 0), (v0, e1, e2)):   # written in place, not stacked then converted
+        row[...] = a
+    return out
 
 
 class BVHKernel:
