@@ -351,3 +351,19 @@ def test_closest_hit_work_counts_the_walk():
     steps, tests = (a.numpy() for a in kernel.closest_hit_work(o, d))
     hit = np.isfinite(t.numpy())
     assert hit.any() and (tests[hit] >= 1).all() and (steps >= 1).all() and (steps <= len(kernel.rows)).all()
+
+
+def test_mesh_sets_key_their_bvh_by_vertices_and_faces(monkeypatch):
+    from tracer.shapes import bvh_cache
+    from tracer.shapes.mesh import Mesh, MeshSet
+
+    monkeypatch.setenv("TRACER_BVH_CACHE", "off")
+    rng = np.random.default_rng(14)
+    v, f = rng.uniform(-1, 1, (200, 3)), rng.integers(0, 200, (300, 3))
+    bvh_cache.clear_memory()
+    built = bvh_cache.cached_layout(v[f], source=[v, f])
+    assert MeshSet([Mesh(v, f, bsdf=None)], base=0, bvh_threshold=0).bvh.rows is built.rows   # the same key
+    moved = v.copy()
+    moved[f[0, 0]] += 1e-9
+    assert bvh_cache.key(moved, f) != bvh_cache.key(v, f) and bvh_cache.key(v, f[:, ::-1]) != bvh_cache.key(v, f)
+    bvh_cache.clear_memory()

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tracer.meshes import MeshError, _parse_bulk, _parse_statements, vertex_normals
+from tracer.meshes import MeshError, _parse_bulk, _parse_statements, read_obj, vertex_normals
 from validation.mesh_scene import torus
 
 from .test_mesh_formats import assert_same, mitsuba_mesh, ours
@@ -61,7 +61,7 @@ def assert_same_mesh(a, b):
 @pytest.mark.parametrize("seed", range(12))
 def test_files_parse_in_bulk_to_the_same_mesh(seed):
     text = _random_obj(seed)
-    assert_same_mesh(_parse_bulk(text), _parse_statements(text, Path("x.obj")))
+    assert_same_mesh(_parse_bulk(text.encode()), _parse_statements(text, Path("x.obj")))
 
 
 @pytest.mark.parametrize("form", ["{0}", "{0}//{0}", "{0}/{0}/{0}", "{0}/{0}"])
@@ -75,7 +75,20 @@ def test_exported_meshes_parse_in_bulk_to_the_same_mesh(form, quads):
     lines = [f"v {x:.7f} {y:.7f} {z:.7f}\nvt {x:.4f} {y:.4f}\nvn {z:.6f} {x:.6f} {y:.6f}" for x, y, z in vertices]
     lines += ["f " + " ".join(form.format(i) for i in face) for face in faces + 1]
     text = "\n".join(lines) + "\n"
-    assert_same_mesh(_parse_bulk(text), _parse_statements(text, Path("x.obj")))
+    assert_same_mesh(_parse_bulk(text.encode()), _parse_statements(text, Path("x.obj")))
+
+
+
+@pytest.mark.parametrize("newline", ["\r\n", "\r"])
+def test_windows_and_old_mac_line_ends_are_read_in_bulk_as_python_reads_text(tmp_path, monkeypatch, newline):
+    import tracer.meshes
+
+    text = _random_obj(3)
+    (tmp_path / "lf.obj").write_text(text)
+    (tmp_path / "other.obj").write_bytes(text.replace("\n", newline).encode())
+    expected = read_obj(tmp_path / "lf.obj")
+    monkeypatch.setattr(tracer.meshes, "_parse_statements", None)     # the bulk parser reads it
+    assert_same_mesh(read_obj(tmp_path / "other.obj"), expected)
 
 
 @pytest.mark.parametrize("change", [
@@ -101,7 +114,7 @@ def test_exported_meshes_parse_in_bulk_to_the_same_mesh(form, quads):
 def test_anything_else_goes_statement_by_statement(change):
     text = change(_random_obj(0))
     assert text != _random_obj(0)
-    assert _parse_bulk(text) is None
+    assert _parse_bulk(text.encode()) is None
 
 
 MUTATIONS = list("0123456789-+/ \t\nfvnt#.eE_x") + ["\r", "\x0c", "\x1f", "\u00e9", "nan", "//", "f ", "v ", "vn ",
@@ -123,7 +136,7 @@ def test_mutated_files_parse_in_bulk_to_the_same_mesh_or_not_at_all(seed):
             lines = _parse_statements(text, Path("x.obj"))
         except MeshError:
             lines = None
-        bulk = _parse_bulk(text)
+        bulk = _parse_bulk(text.encode())
         if bulk is not None:
             assert_same_mesh(bulk, lines)
 
@@ -131,7 +144,7 @@ def test_mutated_files_parse_in_bulk_to_the_same_mesh_or_not_at_all(seed):
 @pytest.mark.parametrize("mesh", sorted(SCENES.glob("*/*.obj")), ids=lambda p: p.name)
 def test_project_meshes_parse_in_bulk_to_the_same_mesh(mesh):
     text = mesh.read_text()
-    assert_same_mesh(_parse_bulk(text), _parse_statements(text, mesh))
+    assert_same_mesh(_parse_bulk(text.encode()), _parse_statements(text, mesh))
 
 
 def test_vertices_are_keyed_by_texture_coordinates_too_as_in_mitsuba(tmp_path, mi):

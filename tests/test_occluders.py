@@ -1,8 +1,10 @@
 """Shadow rays skip primitives whose plane has the whole scene on one side (they can never block one)."""
 import numpy as np
+import pytest
 
 import tracer
 from tracer.geometry import SceneGeometry
+from tracer.shapes.mesh import Mesh, MeshSet
 from tracer.jit import Array3f, Float, UInt32
 
 from .conftest import SCENES
@@ -50,3 +52,40 @@ def test_culled_occluders_change_no_shadow_ray_between_scene_points():
         in_plane |= (np.abs((x - p0) @ n) < 1e-5) & (np.abs((y - p0) @ n) < 1e-5)
     differ = a != b
     assert not np.any(differ & ~in_plane), np.flatnonzero(differ & ~in_plane)
+
+
+def test_mesh_side_bounds_hold_every_side():
+    """The bounds from which the culling decides without a mesh's sides hold each side it would compute,
+    for planes through or beside its vertices, and decide planes clear of it."""
+    rng = np.random.default_rng(5)
+    vertices = rng.normal(size=(500, 3)) * [1, 20, 3e-3] + [4, 0, -1]
+    meshes = MeshSet([Mesh(vertices, rng.integers(0, 500, (800, 3)), bsdf=None)], base=0)
+    axes = [s * np.eye(3)[k] * (1 + 1e-9 * rng.normal(size=3)) for k in range(3) for s in (-1, 1)]
+    for _ in range(300):
+        n = axes[rng.integers(6)] if rng.random() < 0.3 else rng.normal(size=3)   # the box touches the sides
+        n /= np.linalg.norm(n)
+        p0 = vertices[np.argmin(vertices @ n) if rng.random() < 0.5 else rng.integers(500)]
+        p0 = p0 + n * rng.choice([0, 1e-12, -1e-12, 1e-3])
+        side = meshes.sides(p0, n)
+        lo, hi = meshes.side_bounds(p0, n)
+        assert lo <= side.min() and side.max() <= hi
+    assert meshes.side_bounds(np.array([30.0, 0, 0]), np.array([1.0, 0, 0]))[1] < 0
+
+
+def _occluders_from_every_side(geo: SceneGeometry) -> set[int]:
+    """SceneGeometry._possible_occluders computing every side (no bounds)."""
+    eps = 1e-6 * geo.scene.extent()
+    lights = np.array([light.position for light in geo.points]).reshape(-1, 3)
+    keep = set(range(geo.curved_base, geo.n_prims))
+    for shapes in geo.shape_sets:
+        for i, p0, n in shapes.culling_planes():
+            side = np.concatenate([(lights - p0) @ n] + [s.sides(p0, n) for s in geo.shape_sets if s.count])
+            if not (np.all(side >= -eps) or np.all(side <= eps)):
+                keep.add(i)
+    return keep
+
+
+@pytest.mark.parametrize("bvh_threshold", [0, 10 ** 6])
+def test_occluders_decided_from_bounds_are_those_of_every_side(bvh_threshold):
+    geo = SceneGeometry(tracer.load_scene(SCENES / "hexagon_room.xml"), bvh_threshold=bvh_threshold)
+    assert geo.occluders == _occluders_from_every_side(geo)

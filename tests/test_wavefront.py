@@ -93,11 +93,18 @@ def test_the_plan_counts_a_wavefronts_memory(tmp_path):
     assert make_plan(meshes, 16, estimator, 0).launch_bytes == 64 * 64 * 16 * lane_bytes
 
 
-def test_the_branching_estimators_levels_walk_the_bvh_batched(monkeypatch):
-    """The report estimator's levels are in memory: their closest hits go batched, with the same image."""
+def test_the_branching_estimators_levels_walk_the_bvh_batched(monkeypatch, request):
+    """The report estimator's levels are in memory: their closest hits go batched, with the same image
+    (with one Dr.Jit thread: the estimator adds its rays' radiance atomically, in any order with two)."""
     from contextlib import nullcontext
 
+    import drjit as dr
+
     from tracer.rendering import render
+
+    threads = dr.thread_count()
+    dr.set_thread_count(1)
+    request.addfinalizer(lambda: dr.set_thread_count(threads))
 
     scene = tracer.load_scene(SCENES / "cornell_box.xml", width=12, height=12)
     geo = SceneGeometry(scene, bvh_threshold=0)

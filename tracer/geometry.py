@@ -7,13 +7,14 @@ kind, a smooth mesh or a second light the scene lacks adds no instruction.
 """
 from __future__ import annotations
 
+import itertools
 from contextlib import contextmanager
 from dataclasses import dataclass
 
 import drjit as dr
 import numpy as np
 
-from .jit import NO_PRIM, Array3f, Bool, Float, UInt32, vec3
+from .jit import HOST_FLOAT, NO_PRIM, Array3f, Bool, Float, UInt32, vec3
 from .lights import LightSample, select_sample
 from .lights.envmap import EnvmapKernel
 from .materials import MaterialTables
@@ -84,8 +85,8 @@ class SceneGeometry:
     # ---- host-side tables, gathered by primitive index -------------------------------------------
     def _build_tables(self) -> None:
         n = max(self.n_prims, 1)  # an empty scene still needs a table to gather (masked off) from
-        normals, material = np.zeros((n, 3)), np.zeros(n, np.uint32)
-        radiance, light_pdf = np.zeros((n, 3)), np.zeros(n)
+        normals, material = np.zeros((n, 3), HOST_FLOAT), np.zeros(n, np.uint32)
+        radiance, light_pdf = np.zeros((n, 3), HOST_FLOAT), np.zeros(n, HOST_FLOAT)
         for shapes in self.shape_sets:
             normals[shapes.base:shapes.base + shapes.count] = shapes.normals()
             for s, lo, count in shapes.shape_primitives():
@@ -99,7 +100,7 @@ class SceneGeometry:
         self.prim_material = UInt32(material)
         self.prim_radiance = Float(radiance.ravel())
         self.prim_light_pdf = Float(light_pdf)
-        frames = np.zeros((max(self.curved_base, 1), 3, 3))
+        frames = np.zeros((max(self.curved_base, 1), 3, 3), HOST_FLOAT)
         for shapes in self.shape_sets:
             if shapes.planar:
                 frames[shapes.base:shapes.base + shapes.count] = shapes.frames()
@@ -131,11 +132,19 @@ class SceneGeometry:
         lights = np.array([light.position for light in self.points]).reshape(-1, 3)   # shadow rays end there too
         eps = 1e-6 * self.scene.extent()
         keep = set(range(self.curved_base, self.n_prims))
+        sets = sorted((s for s in self.shape_sets if s.count), key=lambda s: s.count)   # the cheapest sides first
         for shapes in self.shape_sets:
             for i, p0, n in shapes.culling_planes():
-                side = np.concatenate([(lights - p0) @ n] + [s.sides(p0, n) for s in self.shape_sets if s.count])
-                if not (np.all(side >= -eps) or np.all(side <= eps)):
-                    keep.add(i)
+                light = (lights - p0) @ n
+                lo, hi = zip(*(s.side_bounds(p0, n) for s in sets))
+                if min([*lo, *light]) >= -eps or max([*hi, *light]) <= eps:   # one side, from the bounds
+                    continue
+                below = above = False           # not every side >= -eps, not every side <= eps (so far)
+                for side in itertools.chain([light], (s.sides(p0, n) for s in sets)):
+                    below, above = below or not np.all(side >= -eps), above or not np.all(side <= eps)
+                    if below and above:
+                        keep.add(i)
+                        break
         return keep
 
     # ---- ray queries ------------------------------------------------------------------------------

@@ -6,6 +6,7 @@ float64. Every kernel module takes its array types from here.
 import os
 
 import drjit as dr
+import numpy as np
 
 from .errors import BackendError
 
@@ -42,6 +43,7 @@ if PRECISION not in ("single", "double"):
 # double: every kernel computes in float64 (random numbers stay float32, promoted), to tell rounding from bias
 Float, Array3f, ArrayXf = (_backend.Float64, _backend.Array3f64, _backend.ArrayXf64) if PRECISION == "double" \
     else (_backend.Float, _backend.Array3f, _backend.ArrayXf)
+HOST_FLOAT = np.float64 if PRECISION == "double" else np.float32   # Float's NumPy type (tables built in it)
 
 INF = float("inf")
 NO_PRIM = 0xFFFFFFFF  # primitive index of "no primitive"

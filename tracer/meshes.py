@@ -31,8 +31,10 @@ def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
 
 @lru_cache(maxsize=16)
 def _read_obj(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    text = path.read_text()
-    vertices, faces, vn = _parse_bulk(text) or _parse_statements(text, path)
+    data = path.read_bytes()
+    if b"\r" in data:     # universal newlines, as Python's text files read them
+        data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+    vertices, faces, vn = _parse_bulk(data) or _parse_statements(data.decode(), path)
     if not len(faces):
         raise MeshError(f"{path}: the mesh has no faces")
     if not np.all(np.isfinite(vertices)):
@@ -103,23 +105,24 @@ def _index(s: str, count: int) -> int:
 _ABSENT = np.iinfo(np.int64).min      # a corner's index that the corner does not name
 
 
-def _parse_bulk(text: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
-    """_parse_statements' mesh in bulk, with NumPy, for the OBJ files exporters write: "v", "vn" and "f"
-    statements at the start of their lines, ASCII text, face corners "p", "p/t", "p/t/n" or "p//n" of
-    plain integers (negative ones relative), any number of corners, anything else ignored as
+def _parse_bulk(text: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
+    """_parse_statements' mesh (of text.decode()) in bulk, with NumPy, for the OBJ files exporters write:
+    "v", "vn" and "f" statements at the start of their lines, ASCII text, face corners "p", "p/t", "p/t/n"
+    or "p//n" of plain integers (negative ones relative), any number of corners, anything else ignored as
     _parse_statements ignores it. None for any other file, which _parse_statements then reads (and
     reports on) line by line."""
     if not text.isascii():
         return None
-    data = np.frombuffer((text if text.endswith("\n") else text + "\n").encode("ascii"), np.uint8)
-    newline = data == 10
+    if not text.endswith(b"\n"):
+        text += b"\n"
+    data = np.frombuffer(text, np.uint8)
+    ends = np.flatnonzero(data == 10)
     # control characters other than tab split lines or words in Python's str methods
-    if np.count_nonzero(data < 32) != np.count_nonzero(newline) + np.count_nonzero(data == 9):
+    if np.count_nonzero(data < 32) != len(ends) + np.count_nonzero(data == 9):
         return None
-    ends = np.flatnonzero(newline)
     starts = np.concatenate(([0], ends[:-1] + 1))
     length = ends - starts
-    c0, c1, c2 = (data[np.minimum(starts + k, len(data) - 1)] for k in range(3))
+    c0, c1, c2 = (np.take(data, starts + k, mode="clip") for k in range(3))   # clip: past the end, the last
     blank1, blank2 = (c1 == 32) | (c1 == 9), (c2 == 32) | (c2 == 9)
     v = (c0 == ord("v")) & blank1 & (length > 1)
     vn = (c0 == ord("v")) & (c1 == ord("n")) & blank2 & (length > 2)
@@ -128,7 +131,7 @@ def _parse_bulk(text: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] |
     bare = ((c0 == ord("v")) | (c0 == ord("f"))) & (length == 1) | (c0 == ord("v")) & np.isin(c1, list(b"nt")) \
         & (length == 2)                                      # a keyword alone
     indented = ((c0 == 32) | (c0 == 9)) & (length > 0)
-    if bare.any() or not f.any() or any(text[s:e].lstrip()[:1] not in ("", "#")
+    if bare.any() or not f.any() or any(text[s:e].lstrip()[:1] not in (b"", b"#")
                                         for s, e in zip(starts[indented], ends[indented])):
         return None
     lines = partial(_lines, data, starts, ends)
@@ -141,11 +144,11 @@ def _parse_bulk(text: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] |
         return None
     per_face, *indices = corners
     p, t, n = (_resolve(i, kind, f, per_face) for i, kind in zip(indices, (v, vt, vn)))
-    if not ((p >= 0).all() and (t >= -1).all() and (n >= -1).all()):
+    if not ((p >= 0).all() and all(i is None or (i >= -1).all() for i in (t, n))):
         return None
     vertex, first = _weld(p, t, n)
     vertices = positions[p[first]]
-    vn_out = normals[n[first]] if len(normals) and (n[first] >= 0).all() else None
+    vn_out = normals[n[first]] if n is not None and (n[first] >= 0).all() else None
     return vertices, _fan(vertex, per_face), vn_out
 
 
@@ -171,7 +174,9 @@ def _face_corners(lines: bytes) -> tuple[np.ndarray, ...] | None:
     """The face statements (whole lines) to the corners per face and each corner's OBJ indices p, t, n
     (_ABSENT where it names none; None where no corner names one), or None unless every corner is "p",
     "p/t", "p/t/n" or "p//n" of plain integers."""
-    if lines.translate(None, b"f0123456789-/ \t\n") or lines.count(b"f") != lines.count(b"\n"):
+    faces = np.frombuffer(lines, np.uint8)
+    newlines = np.flatnonzero(faces == 10)
+    if lines.translate(None, b"f0123456789-/ \t\n") or np.count_nonzero(faces == ord("f")) != len(newlines):
         return None                                            # other bytes, or "f" past the keyword
     lines = lines.replace(b"f", b" ")
     faces = np.frombuffer(lines, np.uint8)
@@ -179,8 +184,8 @@ def _face_corners(lines: bytes) -> tuple[np.ndarray, ...] | None:
     first = np.flatnonzero(space[:-1] & ~space[1:]) + 1       # each corner's first byte
     if not len(first):
         return None
-    per_face = np.diff(np.searchsorted(first, np.flatnonzero(faces == 10)), prepend=0)
-    slashes = doubled = np.zeros(len(first), np.int64)
+    per_face = _per_line(first, newlines)
+    slashes = doubled = None
     if b"/" in lines:
         slash = faces == 47
         last = np.flatnonzero(~space[:-1] & space[1:])        # each corner's last byte
@@ -193,8 +198,10 @@ def _face_corners(lines: bytes) -> tuple[np.ndarray, ...] | None:
         after, before = faces[minus + 1], faces[minus - 1]
         if not (((after >= 48) & (after <= 57)).all() and ((before <= 32) | (before == 47)).all()):
             return None
-    fields = slashes + 1 - doubled                             # p | p t | p t n | p n
     numbers = np.fromstring(lines, np.int64, sep=" ")
+    if slashes is None:                                        # p only
+        return (per_face, numbers, None, None) if len(numbers) == len(first) and numbers.min() > _ABSENT else None
+    fields = slashes + 1 - doubled                             # p | p t | p t n | p n
     if len(numbers) != fields.sum() or (numbers == _ABSENT).any():   # fewer: an empty field ("/1", "1/")
         return None
     at = np.cumsum(fields) - fields
@@ -207,6 +214,13 @@ def _face_corners(lines: bytes) -> tuple[np.ndarray, ...] | None:
     return per_face, p, t, n
 
 
+def _per_line(first: np.ndarray, newlines: np.ndarray) -> np.ndarray:
+    """How many corners (their first bytes, in order) each line (its newline) holds."""
+    if len(first) == 3 * len(newlines) and (first[2::3] < newlines).all() and (first[3::3] > newlines[:-1]).all():
+        return np.full(len(newlines), 3)                       # triangles: no search
+    return np.diff(np.searchsorted(first, newlines), prepend=0)
+
+
 def _per_corner(mask: np.ndarray, first: np.ndarray, last: np.ndarray) -> np.ndarray:
     """How many bytes of each corner (from its first to its last byte) the mask marks."""
     if not mask.any():
@@ -215,28 +229,34 @@ def _per_corner(mask: np.ndarray, first: np.ndarray, last: np.ndarray) -> np.nda
     return count[last] - count[first] + mask[first]
 
 
-def _resolve(i: np.ndarray | None, kind: np.ndarray, faces: np.ndarray, per_face: np.ndarray) -> np.ndarray:
+def _resolve(i: np.ndarray | None, kind: np.ndarray, faces: np.ndarray, per_face: np.ndarray) -> np.ndarray | None:
     """Corners' OBJ indices (from 1, negative: relative to the end; None: none names one) of elements
     defined on the lines marked `kind`, to indices from 0 (as _index); -1 where _ABSENT, -2 where out of
     range of the elements defined before the corner's face line (`faces` marks those, `per_face` counts their
-    corners)."""
+    corners); None for None."""
     if i is None:
-        return np.full(per_face.sum(), -1)
+        return None
     before = np.cumsum(kind)[faces]
-    count = before[0] if before[0] == before[-1] else np.repeat(before, per_face)  # all defined first: one count
+    if before[0] == before[-1]:                                # all defined first: one count
+        count = before[0]
+        if i.min() > 0 and i.max() <= count:                   # none relative, none absent or past the end
+            return i - 1
+    else:
+        count = np.repeat(before, per_face)
     r = np.where(i > 0, i - 1, count + i)
     return np.where(i == _ABSENT, -1, np.where((r >= 0) & (r < count), r, -2))
 
 
-def _weld(p: np.ndarray, t: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each corner's vertex, the vertices numbered in order of first use of their (p, t, n) index triple,
-    and the corner that first uses each vertex."""
+def _weld(p: np.ndarray, t: np.ndarray | None, n: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Each corner's vertex, the vertices numbered in order of first use of their (p, t, n) index triple
+    (t or n None: no corner names one), and the corner that first uses each vertex."""
     corner = np.arange(len(p))
     first = np.full(p.max() + 1, len(p))
     np.minimum.at(first, p, corner)
     first_use = first[p]
-    if not (np.array_equal(t[first_use], t) and np.array_equal(n[first_use], n)):
+    if not all(i is None or np.array_equal(i[first_use], i) for i in (t, n)):
         # a position with several (t, n): key by position and the (t, n) pair's rank
+        t, n = (np.full(len(p), -1) if i is None else i for i in (t, n))
         _, pair = np.unique((t + 1) * (n.max() + 2) + n + 1, return_inverse=True)
         _, key = np.unique(p * (pair.max() + 1) + pair, return_inverse=True)
         first = np.full(key.max() + 1, len(p))
@@ -262,33 +282,49 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
     Computed on coordinate rows (x, y, z of every triangle corner); a vertex's sum runs over the faces' first
     corners in face order, then their second, then their third."""
-    corner = [vertices.T[:, faces[:, i]] for i in range(3)]
+    corners = np.ascontiguousarray(faces.T)
+    corner = corner_rows(vertices, corners)
     edge = [corner[(i + 1) % 3] - corner[i] for i in range(3)]           # c0 -> c1, c1 -> c2, c2 -> c0
-    n = _cross(edge[0], -edge[2])
-    length = _length(n)
+    n = cross_rows(edge[2], edge[0])                                     # = edge[0] x -edge[2], exactly
+    length = length_rows(n)
     n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
-    unit = [e / np.maximum(_length(e), 1e-30) for e in edge]
+    for e in edge:                                                       # to unit vectors, in place
+        np.divide(e, np.maximum(length_rows(e), 1e-30), out=e)
     # the angle at corner i, between its edges to c(i+1) and to c(i+2) (the latter is -edge[i - 1])
-    weighted = [n * np.arccos(np.clip(-_dot(unit[i], unit[i - 1]), -1, 1)) for i in range(3)]
-    index, weighted = faces.T.ravel(), np.concatenate(weighted, axis=1)
-    out = np.stack([np.bincount(index, weighted[k], minlength=len(vertices)) for k in range(3)])
-    length = _length(out)
+    weighted = np.empty((3, 3, len(faces)))                              # coordinate, corner, face
+    for i in range(3):
+        cos = dot_rows(edge[i], edge[i - 1])
+        np.negative(cos, out=cos)
+        np.multiply(n, np.arccos(np.clip(cos, -1, 1, out=cos), out=cos), out=weighted[:, i])
+    index = corners.ravel()
+    out = np.stack([np.bincount(index, weighted[k].ravel(), minlength=len(vertices)) for k in range(3)])
+    length = length_rows(out)
     return np.ascontiguousarray(np.divide(out, length, out=np.zeros_like(out), where=length > 0).T)
 
 
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def corner_rows(vertices: np.ndarray, corners: np.ndarray) -> list[np.ndarray]:
+    """The coordinate rows (3, triangles) of the triangles' first, second and third corners; `corners`: the
+    faces' vertex indices as rows (3, triangles)."""
+    rows, corners = np.ascontiguousarray(vertices.T), np.ascontiguousarray(corners)
+    return [np.take(rows, corners[i], axis=1) for i in range(3)]
+
+
+def dot_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Dot products of coordinate rows (3, n)."""
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Cross products of coordinate rows (3, n)."""
-    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape), np.result_type(a, b))
+    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):     # written into one array, not stacked
+        np.subtract(a[j] * b[k], a[k] * b[j], out=out[i])
+    return out
 
 
-def _length(a: np.ndarray) -> np.ndarray:
+def length_rows(a: np.ndarray) -> np.ndarray:
     """Euclidean lengths (1, n) of coordinate rows (3, n)."""
-    return np.sqrt(_dot(a, a))[None]
+    return np.sqrt(dot_rows(a, a))[None]
 
 
 def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:

@@ -135,8 +135,9 @@ class Scene:
 
     def extent(self) -> float:
         """Diagonal of the bounding box of all geometry (the scene's length scale)."""
-        pts = [p for s in self.shapes for p in s.extent_points()]
+        pts = [np.atleast_2d(p) for s in self.shapes for p in s.extent_points()]
         if not pts:
             return 1.0
-        allp = np.vstack([np.atleast_2d(p) for p in pts])
-        return float(np.linalg.norm(allp.max(0) - allp.min(0))) or 1.0
+        lo = np.min([[p[:, k].min() for k in range(3)] for p in pts], axis=0)   # by column: faster on (n, 3)
+        hi = np.max([[p[:, k].max() for k in range(3)] for p in pts], axis=0)
+        return float(np.linalg.norm(hi - lo)) or 1.0

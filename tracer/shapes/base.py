@@ -77,6 +77,11 @@ class ShapeSet:
         """Signed distances to the plane (p0, n) of points whose hull holds the set's shapes."""
         raise NotImplementedError
 
+    def side_bounds(self, p0: np.ndarray, n: np.ndarray) -> tuple[float, float]:
+        """A lower and an upper bound on sides(p0, n) (here its least and greatest value)."""
+        side = self.sides(p0, n)
+        return side.min(), side.max()
+
     def describe(self) -> str:
         raise NotImplementedError
 

@@ -332,22 +332,35 @@ def layout(tri_vertices: np.ndarray) -> Layout:
     return Layout(nodes, tree.order, wide, np.array([tree.lo[0], tree.hi[0]], np.float64), stack_size)
 
 
+def triangle_frames(v0: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rows v0, e1 = v1 - v0, e2 = v2 - v0 of triangles in Float's type, from their (3, n) float64
+    coordinate rows (so each difference is rounded once)."""
+    out = np.empty((v0.shape[1], 3, 3), _FLOAT)
+    for row, a in zip(out.transpose(1, 2, 0), (v0, e1, e2)):   # written in place, not stacked then converted
+        row[...] = a
+    return out
+
+
 class BVHKernel:
     """The BVH's inner nodes and triangles on the device, and their traversal; triangle ids are offset by
-    `prim_base`. `tables`: the triangles' Layout if already built (shapes.bvh_cache), else built here."""
+    `prim_base`. `tables`: the triangles' Layout if already built (shapes.bvh_cache), else built here;
+    `frames`: their triangle_frames if already computed."""
 
-    def __init__(self, tri_vertices: np.ndarray, prim_base: int, tables: Layout | None = None):
+    def __init__(self, tri_vertices: np.ndarray, prim_base: int, tables: Layout | None = None,
+                 frames: np.ndarray | None = None):
         tables = layout(tri_vertices) if tables is None else tables
+        if frames is None:
+            v = tri_vertices.transpose(1, 2, 0)
+            frames = triangle_frames(v[0], v[1] - v[0], v[2] - v[0])
         self.grid = BoxGrid(*tables.root)
         self.rows = tables.rows
         self.nodes = UInt32(_aligned(tables.nodes))
         self.root = int((tables.nodes[0, 3::4] != 0) @ (1 << np.arange(WIDTH)))   # the root row's link (full slots: links > 0)
         self.stack_size = tables.stack_size
-        v = tri_vertices[tables.order]
-        tris = np.zeros((len(v), 12), _FLOAT)
-        tris[:, 0:3], tris[:, 4:7], tris[:, 8:11] = v[:, 0], v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
+        tris = _aligned_zeros((len(frames), 12), _FLOAT)   # rows (v0, prim, v1 - v0, 0, v2 - v0, 0)
+        tris.reshape(-1, 3, 4)[:, :, :3] = np.take(frames, tables.order, axis=0)
         tris[:, 3] = (tables.order + prim_base).astype(_UINT).view(_FLOAT)
-        self.tris = Float(_aligned(tris.ravel()))
+        self.tris = Float(tris.ravel())
 
     def _child(self, x: ArrayXu, k: int, slope: Array3f, offset: Array3f,
                t_max: Float) -> tuple[Bool, Float, UInt32]:
@@ -541,11 +554,19 @@ def _max(a, b):
     return dr.select(a > b, a, b)
 
 
-def _aligned(a: np.ndarray, alignment: int = 64) -> np.ndarray:
-    """A copy of `a` starting on an `alignment`-byte boundary. Dr.Jit wraps a NumPy array's memory as it
-    is, and gathers from memory it finds unaligned as separate loads instead of packet loads."""
-    buffer = np.empty(a.nbytes + alignment, np.uint8)
-    start = -buffer.ctypes.data % alignment
-    out = buffer[start:start + a.nbytes].view(a.dtype)
+def _aligned(a: np.ndarray) -> np.ndarray:
+    """A copy of `a` (flattened) starting on a 64-byte boundary (as _aligned_zeros)."""
+    out = _aligned_zeros(a.size, a.dtype)
     out[:] = a.ravel()
     return out
+
+
+def _aligned_zeros(shape: int | tuple[int, ...], dtype, alignment: int = 64) -> np.ndarray:
+    """A C-contiguous array of zeros starting on an `alignment`-byte boundary. Dr.Jit wraps a NumPy
+    array's memory as it is, and gathers from memory it finds unaligned as separate loads instead of
+    packet loads."""
+    dtype = np.dtype(dtype)
+    size = int(np.prod(shape)) * dtype.itemsize
+    buffer = np.zeros(size + alignment, np.uint8)   # calloc: pages zeroed as first touched
+    start = -buffer.ctypes.data % alignment
+    return buffer[start:start + size].view(dtype).reshape(shape)

@@ -10,11 +10,11 @@ import drjit as dr
 import numpy as np
 
 from .. import transform
-from .bvh import BVHKernel
+from .bvh import BVHKernel, triangle_frames
 from .bvh_cache import cached_layout
-from ..meshes import MeshError, read_obj, read_ply, vertex_normals
+from ..meshes import MeshError, corner_rows, cross_rows, length_rows, read_obj, read_ply, vertex_normals
 from ..serialized import read_serialized
-from ..jit import INF, Array3f, Bool, Float, UInt32, vec3
+from ..jit import HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, vec3
 from ..sampling import square_to_uniform_triangle
 from .base import ShapeArgs, ShapeSet, exclude
 from .triangle import ray_triangle
@@ -101,10 +101,16 @@ class MeshSet(ShapeSet):
 
     def __init__(self, meshes: list[Mesh], base: int, bvh_threshold: int = BVH_THRESHOLD):
         super().__init__(meshes, base)
-        self.tri_vertices = np.concatenate([m.vertices[m.faces] for m in meshes]) if meshes else np.zeros((0, 3, 3))
+        # every mesh's vertices, and faces numbering them
+        first = np.cumsum([0] + [len(m.vertices) for m in meshes])
+        self._vertices = np.concatenate([m.vertices for m in meshes]) if meshes else np.zeros((0, 3))
+        self._faces = np.concatenate([m.faces + k for m, k in zip(meshes, first)]) if meshes \
+            else np.zeros((0, 3), np.int64)
+        self.tri_vertices = np.take(self._vertices, self._faces, axis=0)
         self.smooth = any(m.normals is not None for m in meshes)
-        self.bvh = BVHKernel(self.tri_vertices, base, cached_layout(self.tri_vertices)) \
-            if self.count > bvh_threshold else None
+        source = [a for m in meshes for a in (m.vertices, m.faces)]   # what the triangles are made of
+        self.bvh = BVHKernel(self.tri_vertices, base, cached_layout(self.tri_vertices, source=source),
+                             self.frames()) if self.count > bvh_threshold else None
         self.corner_normals = Float(self._corner_normals().ravel())
         self.corner_uvs = None
 
@@ -119,14 +125,17 @@ class MeshSet(ShapeSet):
             lo += len(m.faces)
 
     @cached_property
-    def _face_normals(self) -> np.ndarray:
-        v = self.tri_vertices
-        n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    def _frames_normals(self) -> tuple[np.ndarray, np.ndarray]:
+        """The triangles' frames (bvh.triangle_frames) and unit geometric normals (right-handed in the
+        corners' order), from their corners' coordinate rows."""
+        c0, c1, c2 = corner_rows(self._vertices, self._faces.T)
+        e1, e2 = c1 - c0, c2 - c0
+        n = cross_rows(e1, e2)
+        return triangle_frames(c0, e1, e2), (n / np.maximum(length_rows(n), 1e-300)).T
 
     def normals(self) -> np.ndarray:
         """(triangles, 3) unit geometric normals (right-handed in the corners' order)."""
-        return self._face_normals
+        return self._frames_normals[1]
 
     @cached_property
     def _corners(self) -> np.ndarray:
@@ -140,10 +149,11 @@ class MeshSet(ShapeSet):
 
     def _corner_normals(self) -> np.ndarray:
         """(triangles, 3, 3) shading normals at each triangle's corners (its face normal on flat meshes)."""
-        out, flat = np.zeros((max(self.count, 1), 3, 3)), self._face_normals
+        out = np.zeros((max(self.count, 1), 3, 3), HOST_FLOAT)
         for m, lo, n in self.shape_primitives():
             tri = slice(lo - self.base, lo - self.base + n)
-            out[tri] = m.normals[m.faces] if m.normals is not None else flat[tri][:, None, :]
+            out[tri] = np.take(m.normals.astype(HOST_FLOAT), m.faces, axis=0) if m.normals is not None \
+                else self.normals()[tri][:, None, :]
         return out
 
     def build_uvs(self) -> None:
@@ -155,18 +165,29 @@ class MeshSet(ShapeSet):
         self.corner_uvs = Float(uvs.ravel())
 
     def frames(self) -> np.ndarray:
-        tv = self.tri_vertices
-        out = tv.copy()
-        out[:, 1:] -= tv[:, :1]
-        return out
+        return self._frames_normals[0]
 
     def culling_planes(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
         if self.bvh is not None:   # BVH triangles are all tested; only the unrolled ones are worth culling
             return []
-        return [(self.base + j, v[0], n) for j, (v, n) in enumerate(zip(self.tri_vertices, self._face_normals))]
+        return [(self.base + j, v[0], n) for j, (v, n) in enumerate(zip(self.tri_vertices, self.normals()))]
 
     def sides(self, p0: np.ndarray, n: np.ndarray) -> np.ndarray:
         return (self._corners - p0) @ n
+
+    def side_bounds(self, p0: np.ndarray, n: np.ndarray) -> tuple[float, float]:
+        """Bounds on sides(p0, n) from the vertices' bounding box, without computing them: widened by far more
+        than sides' rounding error (a few ulp of the terms' magnitudes), so decisions on them are sides' own."""
+        d = (self._box - p0) * n                   # each coordinate's extreme terms
+        margin = 1e-12 * np.abs(d).max(0).sum()
+        return d.min(0).sum() - margin, d.max(0).sum() + margin
+
+    @cached_property
+    def _box(self) -> np.ndarray:
+        """(2, 3) least and greatest coordinates of the meshes' vertices (column by column: faster on (n, 3))."""
+        lo = [[m.vertices[:, k].min() for k in range(3)] for m in self.shapes]
+        hi = [[m.vertices[:, k].max() for k in range(3)] for m in self.shapes]
+        return np.array([np.min(lo, axis=0), np.max(hi, axis=0)])
 
     def describe(self) -> str:
         return f"{self.count} triangles (Moeller-Trumbore, {'in a BVH' if self.bvh is not None else 'brute force'})"
