@@ -6,7 +6,11 @@ of SAH-based bounding volume hierarchies" (IEEE Symposium on Interactive Ray Tra
 each node's triangles are cut across the axis of their centroids' largest extent, between BINS bins of
 equal counts, where the expected cost of a ray's walk through the children is least, and a node of up to
 LEAF_SIZE triangles stays a leaf where that is cheaper than splitting it. All the nodes of a level are
-split at once, vectorised with NumPy.
+split at once, by a few Dr.Jit kernels over all the triangles (on the tracer's backend, LLVM or CUDA),
+with NumPy for the sorts and the per-level bookkeeping: in NumPy the levels' dozens of passes and
+temporaries took four times as long. The kernels round as NumPy did (float32 boxes, float64 areas and
+costs, no fused multiply-add, min/max keeping the second of equal values), so that the tree does not
+depend on where it is built.
 
 The kernel walks a 4-wide tree (as Embree's and pbrt's wide BVHs, collapsed from the binary one): a row
 holds the boxes of an inner node's grandchildren, or of a child that is a leaf, so its children are 2 to
@@ -39,7 +43,6 @@ import numpy as np
 
 from .triangle import ray_triangle
 from ..jit import INF, PRECISION, Array3f, ArrayXf, ArrayXu, Bool, Float, UInt32, UInt64
-
 LEAF_SIZE = 4      # most triangles in a leaf (at most 7: a leaf's link holds the count in 3 bits)
 BINS = 16          # SAH candidate splits per node: between bins of equal triangle counts
 SAMPLES = 256      # triangles whose boxes stand for a node's bins (all of a smaller node's)
@@ -49,6 +52,7 @@ WIDTH = 4              # children per node of the kernel's table
 MASK = (1 << WIDTH) - 1    # an inner link's low bits: the row's child slots still to visit
 _FLOAT, _UINT = (np.float64, np.uint64) if PRECISION == "double" else (np.float32, np.uint32)
 _UINT_JIT = UInt64 if PRECISION == "double" else UInt32
+_Float32, _Float64, _UInt8 = dr.float32_array_t(UInt32), dr.float64_array_t(UInt32), dr.uint8_array_t(UInt32)
 
 
 @dataclass
@@ -83,28 +87,22 @@ def build(tri_vertices: np.ndarray) -> Tree:
     Each node's triangles are split by a plane across the axis of their centroids' largest extent
     (centroids rounded to float32), where the surface area heuristic's cost is least (_sah); a node becomes
     a leaf where that costs less than splitting it and it holds at most LEAF_SIZE triangles. The triangle ids
-    are sorted by centroid once per axis; each level then splits all its nodes at once, partitioning every
-    axis's list stably into the children's parts (linear time, no sort per level), so that each list stays
-    sorted within every node. Boxes are reduced over the leaves' triangles, then merged bottom-up."""
-    v = tri_vertices
-    lo_t, hi_t = np.minimum(np.minimum(v[:, 0], v[:, 1]), v[:, 2]), np.maximum(np.maximum(v[:, 0], v[:, 1]), v[:, 2])
-    centroid = ((lo_t + hi_t) / 2).astype(np.float32)
-    by_index = [_argsort(centroid[:, a], np.arange(len(v), dtype=np.uint32)) for a in range(3)]
-    rank = np.empty((3, len(v)), np.uint32)
-    for a in range(3):
-        rank[a, by_index[a]] = np.arange(len(v), dtype=np.uint32)
-    # (3, n): triangle ids sorted by centroid along each axis, ties in it by the next axis
-    ids = np.stack([by_index[(a + 1) % 3][_argsort(centroid[:, a], rank[(a + 1) % 3])] for a in range(3)])
-    boxes = np.concatenate([-lo_t, hi_t], 1).astype(np.float32)   # (n, 6): the triangles' boxes as -lo, hi
-    right_side = np.zeros(len(v), bool)
+    are sorted by centroid once per axis (NumPy); each level then splits all its nodes at once, partitioning
+    every axis's list stably into the children's parts (linear time, no sort per level), so that each list
+    stays sorted within every node. The per-level work runs as Dr.Jit kernels (_sah, _split), on the
+    tracer's backend with its lists kept there, and only the levels' nodes come back to NumPy: a level is
+    then a few fused passes over the lists instead of dozens of NumPy temporaries. Boxes are reduced over
+    the leaves' triangles, then merged bottom-up."""
+    n = len(tri_vertices)
+    lists, verts = _triangles(tri_vertices)
     left, right, first, count = [], [], [], []
-    begin, size, n_nodes, levels = np.array([0]), np.array([len(v)]), 1, []
+    begin, size, n_nodes, levels = np.array([0]), np.array([n]), 1, []
     while len(begin):
         levels.append((n_nodes - len(begin), n_nodes))
         split = size > 1
         axis, half = np.zeros(len(begin), np.int64), size // 2
         if split.any():
-            axis[split], half[split], split_cost = _sah(ids, centroid, boxes, begin[split], size[split])
+            axis[split], half[split], split_cost = _sah(lists, begin[split], size[split])
             split[split] = (size[split] > LEAF_SIZE) | (split_cost < size[split])
         first.append(np.where(split, 0, begin))
         count.append(np.where(split, 0, size))
@@ -114,17 +112,17 @@ def build(tri_vertices: np.ndarray) -> Tree:
         right.append(np.where(split, child + 1, -1))
         b, s, half = begin[split], size[split], half[split]
         if len(b):
-            _split(ids, right_side, b, s, axis[split], half)
+            _split(lists, begin, split, axis[split], half)
         begin = np.stack([b, b + half], 1).ravel()
         size = np.stack([half, s - half], 1).ravel()
         n_nodes += len(begin)
     cat = np.concatenate
     left, right, first, count = cat(left), cat(right), cat(first), cat(count)
-    order = ids[0].astype(np.int64)
-    lo, hi = np.empty((n_nodes, 3), lo_t.dtype), np.empty((n_nodes, 3), hi_t.dtype)
+    order = lists.ids[:n].numpy().astype(np.int64)
     leaf = np.flatnonzero(left < 0)
-    leaf = leaf[np.argsort(first[leaf])]     # reduceat wants ascending starts
-    lo[leaf], hi[leaf] = np.minimum.reduceat(lo_t[order], first[leaf]), np.maximum.reduceat(hi_t[order], first[leaf])
+    leaf_lo, leaf_hi = _leaf_boxes(verts, lists.ids, first[leaf], count[leaf])
+    lo, hi = np.empty((n_nodes, 3), leaf_lo.dtype), np.empty((n_nodes, 3), leaf_hi.dtype)
+    lo[leaf], hi[leaf] = leaf_lo, leaf_hi
     for lv_begin, lv_end in levels[::-1]:   # bottom-up
         node = lv_begin + np.flatnonzero(left[lv_begin:lv_end] >= 0)
         lo[node] = np.minimum(lo[left[node]], lo[right[node]])
@@ -132,96 +130,191 @@ def build(tri_vertices: np.ndarray) -> Tree:
     return Tree(lo, hi, left, right, first, count, order, levels)
 
 
-def _sah(ids: np.ndarray, centroid: np.ndarray, boxes: np.ndarray, b: np.ndarray,
-         s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _triangles(tri_vertices: np.ndarray) -> tuple[_Lists, object]:
+    """The build's lists of the triangles, and their vertices (9n, as given) on the kernel backend. One
+    kernel finds each triangle's box and centroid (min/max as NumPy's: of equal values, the second) and
+    its sort keys; NumPy sorts the keys (one sort of 64-bit words per list: a centroid's bits mapped to an
+    order-preserving unsigned integer, above the tie)."""
+    v = tri_vertices if tri_vertices.dtype in (np.float32, np.float64) else tri_vertices.astype(np.float64)
+    n, real = len(v), _Float32 if v.dtype == np.float32 else _Float64
+    verts = real(np.ascontiguousarray(v).ravel())
+    t, stride = dr.arange(UInt32, n), dr.opaque(UInt32, n)
+    centroid, boxes, bits = dr.empty(_Float32, 3 * n), dr.empty(_Float32, 6 * n), dr.empty(UInt32, 3 * n)
+    for a in range(3):
+        x = [dr.gather(real, verts, 9 * t + 3 * j + a) for j in range(3)]
+        lo, hi = _min(_min(x[0], x[1]), x[2]), _max(_max(x[0], x[1]), x[2])
+        c = _Float32((lo + hi) / 2)
+        key = dr.reinterpret_array(UInt32, dr.select(c == 0, 0, c))     # -0.0 as 0.0
+        dr.scatter(bits, dr.select(key >> 31 != 0, ~key, key | 0x80000000), a * stride + t)
+        dr.scatter(centroid, c, a * stride + t)
+        dr.scatter(boxes, _Float32(-lo), a * stride + t)
+        dr.scatter(boxes, _Float32(hi), (a + 3) * stride + t)
+    dr.eval(bits, centroid, boxes)
+    bits = bits.numpy().reshape(3, n)
+    position = np.arange(n, dtype=np.uint64)
+    by_index = []      # per axis: the triangles sorted by centroid, ties by index
+    for a in range(3):
+        key = bits[a].astype(np.uint64)
+        key <<= 32
+        key |= position
+        key.sort()
+        by_index.append(key.astype(np.uint32))
+    ids = []           # per axis: sorted by centroid, ties by the next axis's order
+    for a in range(3):
+        after = by_index[(a + 1) % 3]
+        key = bits[a][after].astype(np.uint64)
+        key <<= 32
+        key |= position
+        key.sort()
+        ids.append(after[key.astype(np.uint32)])
+    return _Lists(n, UInt32(np.concatenate(ids)), centroid, boxes), verts
+
+
+def _leaf_boxes(verts, ids: UInt32, first: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi), each (leaves, 3), of the leaves' triangles' boxes: those of slots [first, first + count)
+    of the first list (count <= LEAF_SIZE)."""
+    real, inf, m = type(verts), float("inf"), len(first)
+    first, count = _opaque(first), _opaque(count)
+    lo, hi = [dr.full(real, inf, m) for _ in range(3)], [dr.full(real, -inf, m) for _ in range(3)]
+    for i in range(LEAF_SIZE):
+        ok = i < count
+        t = dr.gather(UInt32, ids, first + i, ok)
+        for a in range(3):
+            x = [dr.gather(real, verts, 9 * t + 3 * j + a, ok) for j in range(3)]
+            lo[a] = dr.select(ok, _min(lo[a], _min(_min(x[0], x[1]), x[2])), lo[a])
+            hi[a] = dr.select(ok, _max(hi[a], _max(_max(x[0], x[1]), x[2])), hi[a])
+    dr.eval(lo, hi)
+    return np.stack([x.numpy() for x in lo], 1), np.stack([x.numpy() for x in hi], 1)
+
+
+class _Lists:
+    """The build's per-triangle state on the kernel backend: `ids` (3n) the triangle ids of every node's
+    slots sorted along each axis, axis after axis; `centroid` (3n) and `boxes` (6n, as -lo then hi) per
+    axis then triangle; `node` (n) each slot's node among its level's, NONE once in a leaf. Sizes enter
+    the kernels as opaque values, so that a kernel compiled once serves every level and mesh."""
+    NONE = 0xFFFFFFFF
+
+    def __init__(self, n: int, ids: UInt32, centroid, boxes):
+        self.n, self.ids, self.centroid, self.boxes = n, ids, centroid, boxes
+        self.node = dr.zeros(UInt32, n)
+        self.stride = dr.opaque(UInt32, n)
+        dr.eval(self.ids, self.centroid, self.boxes, self.node)
+
+
+def _sah(lists: _Lists, b: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The binned surface area heuristic's split of each node [b, b + s) of sorted slots (s >= 2), all at
-    once: (axis, left triangles, cost). The axis is that of the centroids' largest extent; the node's list
-    sorted along it is cut into min(s, BINS) bins of equal counts, and a split lies between two bins. Its
-    cost, in steps of the walk (an inner node or a triangle test each), is 1 + (A_l n_l + A_r n_r) / A:
-    the node's own step, then each child's triangles weighted by the chance that a ray through the node's
-    box enters the child's (surface areas A). A bin's box is that of SAMPLES / BINS triangles evenly spread
-    over it (all of them in a node of up to SAMPLES). Near-equal costs go to the more even split (so that
-    equal triangles do not make a chain). `boxes`: (n, 6) the triangles' boxes as -lo, hi."""
-    n = len(b)
-    axes = np.arange(3)[:, None]
-    c_lo, c_hi = centroid[ids[:, b], axes], centroid[ids[:, b + s - 1], axes]   # (3, nodes): sorted lists' ends
-    axis = np.argmax(c_hi - c_lo, axis=0)
-    q, bins = np.minimum(s, SAMPLES), np.minimum(s, BINS)
-    sample_node = np.repeat(np.arange(n), q)
-    first_sample = np.cumsum(q) - q
-    i = np.arange(len(sample_node)) - first_sample[sample_node]
-    slot = axis[sample_node] * ids.shape[1] + b[sample_node] + i * s[sample_node] // q[sample_node]
-    box = np.take(boxes, np.take(ids, slot), axis=0)   # (samples, 6); np.take: faster than indexing
-    node = np.repeat(np.arange(n), bins)   # of each bin
-    node_bins = np.cumsum(bins) - bins
-    j = np.arange(len(node)) - node_bins[node]
-    binned = box if len(box) == len(node) else \
-        np.maximum.reduceat(box, first_sample[node] + q[node] * j // bins[node], axis=0)   # (bins, 6)
-    half, cost = np.empty(n, np.int64), np.empty(n)
-    for count in np.unique(bins):          # nodes of `count` bins: one (count, nodes, 6) array
-        sel = np.flatnonzero(bins == count)
-        x = binned[node_bins[sel] + np.arange(count)[:, None]]
-        prefix = np.maximum.accumulate(x, axis=0)
-        suffix = np.maximum.accumulate(x[::-1], axis=0)[::-1]
-        s_sel, q_sel = s[sel], q[sel]
-        n_left = (q_sel * np.arange(1, count)[:, None] // count) * s_sel // q_sel   # triangles in bins before k
-        c = n_left * _area(_extent(prefix[:-1])) + (s_sel - n_left) * _area(_extent(suffix[1:]))
-        c *= 1 + 1e-6 * np.abs(2 * n_left - s_sel) / s_sel
-        best = np.argmin(c, axis=0)
-        whole = _area(_extent(prefix[-1]))
-        half[sel] = n_left[best, np.arange(len(sel))]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            cost[sel] = np.where(whole > 0, 1 + c[best, np.arange(len(sel))] / whole, np.inf)
-    return axis, half, cost
+    once, one kernel lane per node: (axis, left triangles, cost). The axis is that of the centroids' largest
+    extent; the node's list sorted along it is cut into min(s, BINS) bins of equal counts, and a split lies
+    between two bins. Its cost, in steps of the walk (an inner node or a triangle test each), is
+    1 + (A_l n_l + A_r n_r) / A: the node's own step, then each child's triangles weighted by the chance
+    that a ray through the node's box enters the child's (surface areas A). A bin's box is that of
+    SAMPLES / BINS triangles evenly spread over it (all of them in a node of up to SAMPLES). Near-equal costs
+    go to the more even split (so that equal triangles do not make a chain). Boxes are float32 (their
+    maxima exact), areas and costs float64, each operation rounded as written (the LLVM backend fuses no
+    multiply-add unasked), so the splits do not depend on the backend."""
+    n, inf = lists.stride, float("inf")
+    b, s = _opaque(b), _opaque(s)
+
+    def centroid(a, slot):   # along axis a, of the triangle in a slot of the list along a
+        return dr.gather(_Float32, lists.centroid, dr.gather(UInt32, lists.ids, a * n + slot) + a * n)
+
+    extent = [centroid(a, b + s - 1) - centroid(a, b) for a in range(3)]
+    axis, longest = UInt32(0), extent[0]
+    for a in (1, 2):   # the first of equal extents, as np.argmax
+        longer = extent[a] > longest
+        axis, longest = dr.select(longer, a, axis), dr.select(longer, extent[a], longest)
+    q, bins, base = dr.minimum(s, SAMPLES), dr.minimum(s, BINS), axis * n + b
+    few = s < BINS      # one triangle per bin
+    sampled = s > SAMPLES
+
+    def bin_start(j):    # a bin's first sample
+        return dr.select(few, j, q * j // BINS)
+
+    def add_sample(i, *box):   # the box of sample i (slot i * s / q of the node) merged in
+        t = dr.gather(UInt32, lists.ids, base + dr.select(sampled, UInt32(UInt64(i) * UInt64(s) // SAMPLES), i))
+        return (i + 1, *(dr.maximum(box[c], dr.gather(_Float32, lists.boxes, c * n + t)) for c in range(6)))
+
+    bin_box = []   # per bin: 6 values (-lo, hi), -inf for a bin past the node's last
+    for j in range(BINS):
+        end = dr.select(j < bins, bin_start(j + 1), bin_start(j))
+        empty = [dr.full(_Float32, -inf, dr.width(b)) for _ in range(6)]
+        bin_box.append(dr.while_loop((UInt32(bin_start(j)), *empty), lambda i, *_: i < end, add_sample)[1:])
+    merged = bin_box[BINS - 1]
+    suffix_area = [None] * BINS    # area of the box of bins k and after
+    for k in range(BINS - 1, 0, -1):
+        merged = [dr.maximum(x, y) for x, y in zip(merged, bin_box[k])]
+        suffix_area[k] = _box_area(merged)
+    merged, s_float = bin_box[0], _Float64(s)
+    for k in range(1, BINS):   # the split between bins k - 1 and k: the first least cost, as np.argmin
+        n_left = dr.select(few, k, UInt32(UInt64(s) * k // BINS))
+        c = _Float64(n_left) * _box_area(merged) + _Float64(s - n_left) * suffix_area[k]
+        c *= 1 + 1e-6 * _Float64(dr.select(2 * n_left > s, 2 * n_left - s, s - 2 * n_left)) / s_float
+        if k == 1:
+            best, half = c, n_left
+        else:
+            better = (k < bins) & (c < best)
+            best, half = dr.select(better, c, best), dr.select(better, n_left, half)
+        merged = [dr.maximum(x, y) for x, y in zip(merged, bin_box[k])]
+    whole = _box_area(merged)
+    cost = dr.select(whole > 0, 1 + best / whole, inf)
+    dr.eval(axis, half, cost)
+    return axis.numpy().astype(np.int64), half.numpy().astype(np.int64), cost.numpy()
 
 
-def _extent(box: np.ndarray) -> np.ndarray:
-    """Extents (..., 3) of boxes (..., 6) held as -lo, hi, in float64 (their maxima were exact in float32)."""
-    return box[..., :3].astype(np.float64) + box[..., 3:]
-
-
-def _area(extent: np.ndarray) -> np.ndarray:
-    """Surface areas of boxes of extents (..., 3)."""
-    x, y, z = extent[..., 0], extent[..., 1], extent[..., 2]
+def _box_area(box: list):
+    """Surface area, in float64, of a box given as float32 (-lo, hi) (extents exact in float64)."""
+    x, y, z = (_Float64(box[c]) + _Float64(box[c + 3]) for c in range(3))
     return 2 * (x * y + y * z + z * x)
 
 
-def _argsort(key: np.ndarray, tie: np.ndarray) -> np.ndarray:
-    """The tie values (unique uint32) of float32 keys sorted by (key, tie), in one sort of 64-bit words:
-    the key's bits mapped to an order-preserving unsigned integer above the tie (faster than NumPy's
-    stable argsort)."""
-    bits = (key + np.float32(0)).view(np.uint32).astype(np.uint64)   # + 0: -0.0 becomes 0.0
-    bits = np.where(bits >> 31, bits ^ 0xFFFFFFFF, bits | 0x80000000)
-    return (np.sort(bits << 32 | tie.astype(np.uint64)) & 0xFFFFFFFF).astype(np.int32)
+def _split(lists: _Lists, begin: np.ndarray, split: np.ndarray, axis: np.ndarray, half: np.ndarray) -> None:
+    """Splits the level's nodes [begin, begin + size) where `split`: in each, the first half[i] triangles of
+    its list along axis[i] (half, axis: of the splitting nodes) form the left child, and every axis's list
+    is partitioned stably, left child first; `lists.node` becomes each slot's node on the next level (the
+    children, in order). A pass over the slots finds each triangle's side (left, right, or staying: in a
+    node that does not split), reading the lists along the nodes' axes; a prefix sum over the three lists
+    counts the left ones, and a last pass moves every slot to its place."""
+    n, none = lists.stride, _Lists.NONE
+    rank = _opaque(np.where(split, np.cumsum(split) - 1, none))    # a level node's index among the splitting ones
+    b, half_j, axis_j = _opaque(begin[split]), _opaque(half), _opaque(axis)
+    before = _opaque(np.cumsum(half) - half)      # the left-child triangles of the level's earlier nodes
+    all_left = dr.opaque(UInt32, int(half.sum()))
+
+    slot = dr.arange(UInt32, lists.n)
+    k = dr.gather(UInt32, rank, lists.node, lists.node != none)
+    active = (lists.node != none) & (k != none)
+    k = dr.select(active, k, none)
+    b_k, half_k = dr.gather(UInt32, b, k, active), dr.gather(UInt32, half_j, k, active)
+    before_k = dr.gather(UInt32, before, k, active)
+    goes_right = slot >= b_k + half_k
+    side = dr.zeros(_UInt8, lists.n)     # per triangle: 0 left, 1 right, 2 staying
+    dr.scatter(side, dr.select(active, dr.select(goes_right, _UInt8(1), 0), 2),
+               dr.gather(UInt32, lists.ids, dr.gather(UInt32, axis_j, k, active) * n + slot))
+    to_left = b_k - before_k - 1      # a left one's place: to_left + the left ones up to it, from the level's start
+    to_right = half_k + before_k      # a right one's: its slot + to_right - those
+    next_node = dr.select(active, 2 * k + dr.select(goes_right, 1, 0), none)
+    dr.eval(side, to_left, to_right, next_node)
+
+    i = dr.arange(UInt32, 3 * lists.n)
+    a = dr.select(i >= 2 * n, 2, dr.select(i >= n, 1, 0))
+    slot = i - a * n
+    moved = dr.gather(UInt32, lists.ids, i)
+    to = dr.gather(_UInt8, side, moved)
+    left = dr.prefix_reduce(dr.ReduceOp.Add, dr.select(to == 0, UInt32(1), 0), exclusive=False) - a * all_left
+    dest = dr.select(to == 0, dr.gather(UInt32, to_left, slot) + left,
+                     dr.select(to == 1, slot + dr.gather(UInt32, to_right, slot) - left, slot))
+    ids = dr.empty(UInt32, 3 * lists.n)
+    dr.scatter(ids, moved, a * n + dest)
+    lists.ids, lists.node = ids, next_node
+    dr.eval(lists.ids, lists.node)
 
 
-def _split(ids: np.ndarray, right_side: np.ndarray, b: np.ndarray, s: np.ndarray, axis: np.ndarray,
-           half: np.ndarray) -> None:
-    """Splits nodes [b, b + s) of sorted slots in place: in each, the first half[i] triangles of its list
-    along axis[i] form the left child, and every axis's list is partitioned stably, left child first."""
-    b, s, half = b.astype(np.int32), s.astype(np.int32), half.astype(np.int32)   # int32: less memory traffic
-    whole = s.sum() == ids.shape[1]          # the level's nodes cover every slot (no leaves yet)
-    slots = np.arange(ids.shape[1], dtype=np.int32) if whole else _ranges(b, s).astype(np.int32)
-    node = np.repeat(np.arange(len(b), dtype=np.int32), s)
-    right_side[np.take(ids, axis[node] * ids.shape[1] + slots)] = slots >= (b + half)[node]   # np.take: faster than indexing
-    # A slot's destination, given `left`, the left-child triangles up to it (inclusive) counted from the
-    # level's first slot: a left one goes to b - before - 1 + left, after the left ones before it in its
-    # node; a right one to slot + half - (left - before), after its node's left half and the right ones
-    # before it (`before`: the left-child triangles of the level's earlier nodes).
-    before = (np.cumsum(half, dtype=np.int32) - half)[node]
-    to_left = b[node] - before - 1
-    gap = slots + half[node] + before - to_left   # to_right - to_left: dest = to_left + left + is_right * (gap - 2 left)
-    for a in range(3):
-        moved = ids[a].copy() if whole else np.take(ids[a], slots)
-        is_right = np.take(right_side, moved)
-        left = np.cumsum(~is_right, dtype=np.int32)
-        ids[a, to_left + left + is_right * (gap - 2 * left)] = moved
-
-
-def _ranges(begin: np.ndarray, size: np.ndarray) -> np.ndarray:
-    """The concatenated integer ranges [begin, begin + size)."""
-    offset = np.repeat(begin - (np.cumsum(size) - size), size)
-    return offset + np.arange(size.sum())
+def _opaque(x: np.ndarray) -> UInt32:
+    """x as a UInt32 array in memory: an array of one value would else enter the kernels as a literal,
+    compiling them anew for every value."""
+    out = UInt32(np.asarray(x, np.uint32))
+    dr.make_opaque(out)
+    return out
 
 
 def depth_first(tree: Tree) -> np.ndarray:
@@ -252,15 +345,24 @@ class BoxGrid:
 
     def quantize(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Grid corners (q_lo, q_hi) of boxes (n, 3), a step beyond them on every side; decoded, they
-        contain the boxes."""
-        step, origin = self.step.astype(np.float64), self.origin.astype(np.float64)
-        q_lo = np.clip(np.floor((lo - origin) / step) - 1, 0, GRID).astype(np.int64)
-        q_hi = np.clip(np.ceil((hi - origin) / step) + 1, 0, GRID).astype(np.int64)
-        while (low := self.decode(q_lo) > lo).any():     # rounding: at most a step more (decode(0) < lo)
-            q_lo -= low
-        while (high := self.decode(q_hi) < hi).any():    # decode(GRID) > hi
-            q_hi += high
-        return q_lo, q_hi
+        contain the boxes. One kernel, a lane per box, in float64 rounded as `decode` (a step more where
+        rounding left a corner inside the box): NumPy's passes over the tree's boxes took longer."""
+        q = []
+        for x, outwards, beyond in ((lo, dr.floor, -1), (hi, dr.ceil, 1)):
+            for a in range(3):
+                step, origin = (dr.opaque(_Float64, float(v[a])) for v in (self.step, self.origin))
+                corner = _Float64(np.ascontiguousarray(x[:, a], np.float64))
+
+                def outside(k):    # decode(k) not beyond the corner
+                    y = _Float64(k) * step + origin
+                    y = _Float64(_Float32(y)) if _FLOAT is np.float32 else y
+                    return y > corner if beyond < 0 else y < corner
+
+                k = UInt32(dr.clip(outwards((corner - origin) / step) + beyond, 0, GRID))
+                q.append(dr.while_loop((k,), outside, lambda k: (k - 1 if beyond < 0 else k + 1,))[0])
+        dr.eval(q)
+        q = np.stack([k.numpy() for k in q], 1).astype(np.int64)
+        return q[:, :3], q[:, 3:]
 
     @staticmethod
     def coords(x: list[UInt32]) -> tuple[Array3f, Array3f]:
