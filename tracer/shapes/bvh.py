@@ -112,9 +112,9 @@ def build(tri_vertices: np.ndarray) -> Tree:
         right.append(np.where(split, child + 1, -1))
         b, s, half = begin[split], size[split], half[split]
         if len(b):
-            _split(lists, begin, split, axis[split], half)
-        begin = np.stack([b, b + half], 1).ravel()
-        size = np.stack([half, s - half], 1).ravel()
+            _split(lists, begin, size, split, axis[split], half)
+        begin, size = np.empty(2 * len(b), np.int64), np.empty(2 * len(b), np.int64)   # the children
+        begin[0::2], begin[1::2], size[0::2], size[1::2] = b, b + half, half, s - half
         n_nodes += len(begin)
     cat = np.concatenate
     left, right, first, count = cat(left), cat(right), cat(first), cat(count)
@@ -189,14 +189,15 @@ def _leaf_boxes(verts, ids: UInt32, first: np.ndarray, count: np.ndarray) -> tup
 
 class _Lists:
     """The build's per-triangle state on the kernel backend: `ids` (3n) the triangle ids of every node's
-    slots sorted along each axis, axis after axis; `centroid` (3n) and `boxes` (6n, as -lo then hi) per
-    axis then triangle; `node` (n) each slot's node among its level's, NONE once in a leaf. Sizes enter
-    the kernels as opaque values, so that a kernel compiled once serves every level and mesh."""
+    slots sorted along each axis, axis after axis, and `spare` another such buffer, which a level's
+    partition fills (then the two swap); `centroid` (3n) and `boxes` (6n, as -lo then hi) per axis then
+    triangle; `node` (n) each slot's node among its level's, NONE once in a leaf. Sizes enter the kernels
+    as opaque values, so that a kernel compiled once serves every level and mesh."""
     NONE = 0xFFFFFFFF
 
     def __init__(self, n: int, ids: UInt32, centroid, boxes):
         self.n, self.ids, self.centroid, self.boxes = n, ids, centroid, boxes
-        self.node = dr.zeros(UInt32, n)
+        self.spare, self.node = dr.empty(UInt32, 3 * n), dr.zeros(UInt32, n)
         self.stride = dr.opaque(UInt32, n)
         dr.eval(self.ids, self.centroid, self.boxes, self.node)
 
@@ -267,45 +268,52 @@ def _box_area(box: list):
     return 2 * (x * y + y * z + z * x)
 
 
-def _split(lists: _Lists, begin: np.ndarray, split: np.ndarray, axis: np.ndarray, half: np.ndarray) -> None:
+def _split(lists: _Lists, begin: np.ndarray, size: np.ndarray, split: np.ndarray, axis: np.ndarray,
+           half: np.ndarray) -> None:
     """Splits the level's nodes [begin, begin + size) where `split`: in each, the first half[i] triangles of
     its list along axis[i] (half, axis: of the splitting nodes) form the left child, and every axis's list
     is partitioned stably, left child first; `lists.node` becomes each slot's node on the next level (the
-    children, in order). A pass over the slots finds each triangle's side (left, right, or staying: in a
-    node that does not split), reading the lists along the nodes' axes; a prefix sum over the three lists
-    counts the left ones, and a last pass moves every slot to its place."""
+    children, in order). A pass over the level's slots finds each triangle's side (left, right, or
+    staying: in a node that does not split), reading the lists along the nodes' axes; a prefix sum over
+    the three lists counts the left ones, and a last pass moves every slot to its place in `lists.spare`.
+    The slots of a level's leaves are copied on their own level, and may be left alone after (both
+    buffers then hold them), so that the deep levels, most of whose slots are in leaves, cost less."""
     n, none = lists.stride, _Lists.NONE
     rank = _opaque(np.where(split, np.cumsum(split) - 1, none))    # a level node's index among the splitting ones
     b, half_j, axis_j = _opaque(begin[split]), _opaque(half), _opaque(axis)
     before = _opaque(np.cumsum(half) - half)      # the left-child triangles of the level's earlier nodes
-    all_left = dr.opaque(UInt32, int(half.sum()))
+    # the slots to visit: all (a counter: the passes then read the lists as packets), or, where most are
+    # in leaves already, those of the level's nodes
+    compact = 2 * int(size.sum()) < lists.n
+    slots = dr.compress(lists.node != none) if compact else dr.arange(UInt32, lists.n)
+    all_left, width = dr.opaque(UInt32, int(half.sum())), dr.opaque(UInt32, dr.width(slots))
 
-    slot = dr.arange(UInt32, lists.n)
-    k = dr.gather(UInt32, rank, lists.node, lists.node != none)
-    active = (lists.node != none) & (k != none)
-    k = dr.select(active, k, none)
+    node = dr.gather(UInt32, lists.node, slots)
+    k = dr.gather(UInt32, rank, node, node != none)
+    active = (node != none) & (k != none)
     b_k, half_k = dr.gather(UInt32, b, k, active), dr.gather(UInt32, half_j, k, active)
     before_k = dr.gather(UInt32, before, k, active)
-    goes_right = slot >= b_k + half_k
-    side = dr.zeros(_UInt8, lists.n)     # per triangle: 0 left, 1 right, 2 staying
+    goes_right = slots >= b_k + half_k
+    side = dr.empty(_UInt8, lists.n)     # per triangle of the level: 0 left, 1 right, 2 staying
     dr.scatter(side, dr.select(active, dr.select(goes_right, _UInt8(1), 0), 2),
-               dr.gather(UInt32, lists.ids, dr.gather(UInt32, axis_j, k, active) * n + slot))
+               dr.gather(UInt32, lists.ids, dr.gather(UInt32, axis_j, k, active) * n + slots))
     to_left = b_k - before_k - 1      # a left one's place: to_left + the left ones up to it, from the level's start
     to_right = half_k + before_k      # a right one's: its slot + to_right - those
-    next_node = dr.select(active, 2 * k + dr.select(goes_right, 1, 0), none)
+    next_node = dr.full(UInt32, none, lists.n)
+    dr.scatter(next_node, dr.select(active, 2 * k + dr.select(goes_right, 1, 0), none), slots)
     dr.eval(side, to_left, to_right, next_node)
 
-    i = dr.arange(UInt32, 3 * lists.n)
-    a = dr.select(i >= 2 * n, 2, dr.select(i >= n, 1, 0))
-    slot = i - a * n
-    moved = dr.gather(UInt32, lists.ids, i)
+    i = dr.arange(UInt32, 3 * dr.width(slots))      # the slots of the three lists
+    a = dr.select(i >= 2 * width, 2, dr.select(i >= width, 1, 0))
+    j = i - a * width
+    slot = dr.gather(UInt32, slots, j) if compact else j
+    moved = dr.gather(UInt32, lists.ids, a * n + slot if compact else i)
     to = dr.gather(_UInt8, side, moved)
     left = dr.prefix_reduce(dr.ReduceOp.Add, dr.select(to == 0, UInt32(1), 0), exclusive=False) - a * all_left
-    dest = dr.select(to == 0, dr.gather(UInt32, to_left, slot) + left,
-                     dr.select(to == 1, slot + dr.gather(UInt32, to_right, slot) - left, slot))
-    ids = dr.empty(UInt32, 3 * lists.n)
-    dr.scatter(ids, moved, a * n + dest)
-    lists.ids, lists.node = ids, next_node
+    dest = dr.select(to == 0, dr.gather(UInt32, to_left, j, to == 0) + left,
+                     dr.select(to == 1, slot + dr.gather(UInt32, to_right, j, to == 1) - left, slot))
+    dr.scatter(lists.spare, moved, a * n + dest)
+    lists.ids, lists.spare, lists.node = lists.spare, lists.ids, next_node
     dr.eval(lists.ids, lists.node)
 
 
@@ -343,15 +351,17 @@ class BoxGrid:
         """Corners (n, 3) as the kernel computes them: the exact origin + q * step, rounded once."""
         return (q * self.step.astype(np.float64) + self.origin).astype(_FLOAT)
 
-    def quantize(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Grid corners (q_lo, q_hi) of boxes (n, 3), a step beyond them on every side; decoded, they
-        contain the boxes. One kernel, a lane per box, in float64 rounded as `decode` (a step more where
-        rounding left a corner inside the box): NumPy's passes over the tree's boxes took longer."""
-        q = []
+    def quantize(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """(n, 3) uint32: the words of boxes (n, 3) as `coords` reads them, their grid corners a step beyond
+        them on every side; decoded, they contain the boxes. One kernel, a lane per box, in float64
+        rounded as `decode` (a step more where rounding left a corner inside the box): NumPy's passes
+        over the tree's boxes took longer."""
+        q, i = [], dr.arange(UInt32, len(lo))
         for x, outwards, beyond in ((lo, dr.floor, -1), (hi, dr.ceil, 1)):
+            x = _Float64(np.asarray(x, np.float64).ravel())
             for a in range(3):
                 step, origin = (dr.opaque(_Float64, float(v[a])) for v in (self.step, self.origin))
-                corner = _Float64(np.ascontiguousarray(x[:, a], np.float64))
+                corner = dr.gather(_Float64, x, 3 * i + a)
 
                 def outside(k):    # decode(k) not beyond the corner
                     y = _Float64(k) * step + origin
@@ -360,9 +370,12 @@ class BoxGrid:
 
                 k = UInt32(dr.clip(outwards((corner - origin) / step) + beyond, 0, GRID))
                 q.append(dr.while_loop((k,), outside, lambda k: (k - 1 if beyond < 0 else k + 1,))[0])
-        dr.eval(q)
-        q = np.stack([k.numpy() for k in q], 1).astype(np.int64)
-        return q[:, :3], q[:, 3:]
+        words = [q[0] | q[1] << 16, q[2] | q[3] << 16, q[4] | q[5] << 16]
+        dr.eval(words)
+        out = np.empty((len(lo), 3), np.uint32)
+        for c, w in enumerate(words):
+            out[:, c] = w.numpy()
+        return out
 
     @staticmethod
     def coords(x: list[UInt32]) -> tuple[Array3f, Array3f]:
@@ -405,14 +418,14 @@ def layout(tri_vertices: np.ndarray) -> Layout:
     the tree's inner nodes at even depths (the root's, its grandchildren's...), in depth-first order."""
     tree = build(tri_vertices)
     grid = BoxGrid(tree.lo[0], tree.hi[0])
-    q_lo, q_hi = grid.quantize(tree.lo, tree.hi)
-    boxes = np.stack([q_lo[:, 0] | q_lo[:, 1] << 16, q_lo[:, 2] | q_hi[:, 0] << 16,
-                      q_hi[:, 1] | q_hi[:, 2] << 16], 1).astype(np.uint32)
+    boxes = grid.quantize(tree.lo, tree.hi)
     depth = np.zeros(len(tree.left), np.int64)
     for level, (begin, end) in enumerate(tree.levels):
         depth[begin:end] = level
+    in_order = np.full(len(tree.left), -1)      # the rows, in depth-first order (positions are unique)
     wide = np.flatnonzero(tree.inner & (depth % 2 == 0))
-    wide = wide[np.argsort(depth_first(tree)[wide])]
+    in_order[depth_first(tree)[wide]] = wide
+    wide = in_order[in_order >= 0]
     if len(wide):
         children = wide_children(tree, wide)
     else:                # a single leaf: a root row with it as its only child
@@ -422,11 +435,9 @@ def layout(tri_vertices: np.ndarray) -> Layout:
     index = np.zeros(len(tree.left), np.int64)
     index[wide] = np.arange(len(wide)) * (MASK + 1) + mask     # a row's link: its index and its full slots
     link = np.where(tree.inner, index, LEAF_BIT | (tree.first * 8 + tree.count))
-    nodes = np.zeros((len(wide), 4 * WIDTH), np.uint32)
-    for k in range(WIDTH):
-        child = children[:, k]
-        nodes[:, 4 * k:4 * k + 3] = np.where(full[:, k, None], boxes[child], 0)
-        nodes[:, 4 * k + 3] = np.where(full[:, k], link[child], 0)
+    words = np.zeros((len(tree.left) + 1, 4), np.uint32)   # per node its box's words and its link; an
+    words[:-1, :3], words[:-1, 3] = boxes, link              # empty slot (-1) reads the last, zeros
+    nodes = words[children].reshape(len(wide), 4 * WIDTH)
     stack_size = max(1, len(tree.levels) // 2)   # a leaf at depth d has ceil(d / 2) rows above it
     return Layout(nodes, tree.order, wide, np.array([tree.lo[0], tree.hi[0]], np.float64), stack_size)
 
