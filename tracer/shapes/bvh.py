@@ -6,11 +6,11 @@ of SAH-based bounding volume hierarchies" (IEEE Symposium on Interactive Ray Tra
 each node's triangles are cut across the axis of their centroids' largest extent, between BINS bins of
 equal counts, where the expected cost of a ray's walk through the children is least, and a node of up to
 LEAF_SIZE triangles stays a leaf where that is cheaper than splitting it. All the nodes of a level are
-split at once, by a few Dr.Jit kernels over all the triangles (on the tracer's backend, LLVM or CUDA),
-with NumPy for the sorts and the per-level bookkeeping: in NumPy the levels' dozens of passes and
-temporaries took four times as long. The kernels round as NumPy did (float32 boxes, float64 areas and
-costs, no fused multiply-add, min/max keeping the second of equal values), so that the tree does not
-depend on where it is built.
+split at once, by a few Dr.Jit kernels over the triangles (on the host: the LLVM backend, whatever the
+tracer's), with NumPy for the sorts and the per-level bookkeeping: in NumPy alone the levels' dozens of
+passes and temporaries took about three times as long. The kernels round as the NumPy build did (float32
+boxes, float64 areas and costs, no fused multiply-add, min/max keeping the second of equal values), so
+the tree is the same, bit for bit.
 
 The kernel walks a 4-wide tree (as Embree's and pbrt's wide BVHs, collapsed from the binary one): a row
 holds the boxes of an inner node's grandchildren, or of a child that is a leaf, so its children are 2 to
@@ -40,9 +40,15 @@ from functools import cached_property
 
 import drjit as dr
 import numpy as np
+# the build's kernels run on the host, on Dr.Jit's LLVM backend, whatever the tracer's: their rounding is
+# checked against NumPy's there (a GPU's compiler may fuse a multiply and an add, or flush denormals)
+from drjit.llvm import Float as _Float32, Float64 as _Float64, UInt8 as _UInt8, UInt32 as _UInt32, \
+    UInt64 as _UInt64
 
 from .triangle import ray_triangle
-from ..jit import INF, PRECISION, Array3f, ArrayXf, ArrayXu, Bool, Float, UInt32, UInt64
+from ..errors import BackendError
+from ..jit import INF, LLVM_FIX, PRECISION, Array3f, ArrayXf, ArrayXu, Bool, Float, UInt32, UInt64
+
 LEAF_SIZE = 4      # most triangles in a leaf (at most 7: a leaf's link holds the count in 3 bits)
 BINS = 16          # SAH candidate splits per node: between bins of equal triangle counts
 SAMPLES = 256      # triangles whose boxes stand for a node's bins (all of a smaller node's)
@@ -52,7 +58,6 @@ WIDTH = 4              # children per node of the kernel's table
 MASK = (1 << WIDTH) - 1    # an inner link's low bits: the row's child slots still to visit
 _FLOAT, _UINT = (np.float64, np.uint64) if PRECISION == "double" else (np.float32, np.uint32)
 _UINT_JIT = UInt64 if PRECISION == "double" else UInt32
-_Float32, _Float64, _UInt8 = dr.float32_array_t(UInt32), dr.float64_array_t(UInt32), dr.uint8_array_t(UInt32)
 
 
 @dataclass
@@ -89,10 +94,10 @@ def build(tri_vertices: np.ndarray) -> Tree:
     a leaf where that costs less than splitting it and it holds at most LEAF_SIZE triangles. The triangle ids
     are sorted by centroid once per axis (NumPy); each level then splits all its nodes at once, partitioning
     every axis's list stably into the children's parts (linear time, no sort per level), so that each list
-    stays sorted within every node. The per-level work runs as Dr.Jit kernels (_sah, _split), on the
-    tracer's backend with its lists kept there, and only the levels' nodes come back to NumPy: a level is
-    then a few fused passes over the lists instead of dozens of NumPy temporaries. Boxes are reduced over
-    the leaves' triangles, then merged bottom-up."""
+    stays sorted within every node. The per-level work runs as host kernels (_sah, _split) with the lists
+    kept there, and only the levels' nodes come back to NumPy: a level is then a few fused passes over the
+    lists instead of dozens of NumPy temporaries. Boxes are reduced over the leaves' triangles (a kernel),
+    then merged bottom-up."""
     n = len(tri_vertices)
     lists, verts = _triangles(tri_vertices)
     left, right, first, count = [], [], [], []
@@ -135,16 +140,18 @@ def _triangles(tri_vertices: np.ndarray) -> tuple[_Lists, object]:
     kernel finds each triangle's box and centroid (min/max as NumPy's: of equal values, the second) and
     its sort keys; NumPy sorts the keys (one sort of 64-bit words per list: a centroid's bits mapped to an
     order-preserving unsigned integer, above the tie)."""
+    if not dr.has_backend(dr.JitBackend.LLVM):
+        raise BackendError(f"the BVH build runs on Dr.Jit's LLVM backend, which is unavailable: {LLVM_FIX}")
     v = tri_vertices if tri_vertices.dtype in (np.float32, np.float64) else tri_vertices.astype(np.float64)
     n, real = len(v), _Float32 if v.dtype == np.float32 else _Float64
     verts = real(np.ascontiguousarray(v).ravel())
-    t, stride = dr.arange(UInt32, n), dr.opaque(UInt32, n)
-    centroid, boxes, bits = dr.empty(_Float32, 3 * n), dr.empty(_Float32, 6 * n), dr.empty(UInt32, 3 * n)
+    t, stride = dr.arange(_UInt32, n), dr.opaque(_UInt32, n)
+    centroid, boxes, bits = dr.empty(_Float32, 3 * n), dr.empty(_Float32, 6 * n), dr.empty(_UInt32, 3 * n)
     for a in range(3):
         x = [dr.gather(real, verts, 9 * t + 3 * j + a) for j in range(3)]
         lo, hi = _min(_min(x[0], x[1]), x[2]), _max(_max(x[0], x[1]), x[2])
         c = _Float32((lo + hi) / 2)
-        key = dr.reinterpret_array(UInt32, dr.select(c == 0, 0, c))     # -0.0 as 0.0
+        key = dr.reinterpret_array(_UInt32, dr.select(c == 0, 0, c))     # -0.0 as 0.0
         dr.scatter(bits, dr.select(key >> 31 != 0, ~key, key | 0x80000000), a * stride + t)
         dr.scatter(centroid, c, a * stride + t)
         dr.scatter(boxes, _Float32(-lo), a * stride + t)
@@ -167,10 +174,10 @@ def _triangles(tri_vertices: np.ndarray) -> tuple[_Lists, object]:
         key |= position
         key.sort()
         ids.append(after[key.astype(np.uint32)])
-    return _Lists(n, UInt32(np.concatenate(ids)), centroid, boxes), verts
+    return _Lists(n, _UInt32(np.concatenate(ids)), centroid, boxes), verts
 
 
-def _leaf_boxes(verts, ids: UInt32, first: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _leaf_boxes(verts, ids: _UInt32, first: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(lo, hi), each (leaves, 3), of the leaves' triangles' boxes: those of slots [first, first + count)
     of the first list (count <= LEAF_SIZE)."""
     real, inf, m = type(verts), float("inf"), len(first)
@@ -178,7 +185,7 @@ def _leaf_boxes(verts, ids: UInt32, first: np.ndarray, count: np.ndarray) -> tup
     lo, hi = [dr.full(real, inf, m) for _ in range(3)], [dr.full(real, -inf, m) for _ in range(3)]
     for i in range(LEAF_SIZE):
         ok = i < count
-        t = dr.gather(UInt32, ids, first + i, ok)
+        t = dr.gather(_UInt32, ids, first + i, ok)
         for a in range(3):
             x = [dr.gather(real, verts, 9 * t + 3 * j + a, ok) for j in range(3)]
             lo[a] = dr.select(ok, _min(lo[a], _min(_min(x[0], x[1]), x[2])), lo[a])
@@ -195,10 +202,10 @@ class _Lists:
     as opaque values, so that a kernel compiled once serves every level and mesh."""
     NONE = 0xFFFFFFFF
 
-    def __init__(self, n: int, ids: UInt32, centroid, boxes):
+    def __init__(self, n: int, ids: _UInt32, centroid, boxes):
         self.n, self.ids, self.centroid, self.boxes = n, ids, centroid, boxes
-        self.spare, self.node = dr.empty(UInt32, 3 * n), dr.zeros(UInt32, n)
-        self.stride = dr.opaque(UInt32, n)
+        self.spare, self.node = dr.empty(_UInt32, 3 * n), dr.zeros(_UInt32, n)
+        self.stride = dr.opaque(_UInt32, n)
         dr.eval(self.ids, self.centroid, self.boxes, self.node)
 
 
@@ -217,10 +224,10 @@ def _sah(lists: _Lists, b: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.nd
     b, s = _opaque(b), _opaque(s)
 
     def centroid(a, slot):   # along axis a, of the triangle in a slot of the list along a
-        return dr.gather(_Float32, lists.centroid, dr.gather(UInt32, lists.ids, a * n + slot) + a * n)
+        return dr.gather(_Float32, lists.centroid, dr.gather(_UInt32, lists.ids, a * n + slot) + a * n)
 
     extent = [centroid(a, b + s - 1) - centroid(a, b) for a in range(3)]
-    axis, longest = UInt32(0), extent[0]
+    axis, longest = _UInt32(0), extent[0]
     for a in (1, 2):   # the first of equal extents, as np.argmax
         longer = extent[a] > longest
         axis, longest = dr.select(longer, a, axis), dr.select(longer, extent[a], longest)
@@ -231,23 +238,23 @@ def _sah(lists: _Lists, b: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.nd
     def bin_start(j):    # a bin's first sample
         return dr.select(few, j, q * j // BINS)
 
-    def add_sample(i, *box):   # the box of sample i (slot i * s / q of the node) merged in
-        t = dr.gather(UInt32, lists.ids, base + dr.select(sampled, UInt32(UInt64(i) * UInt64(s) // SAMPLES), i))
-        return (i + 1, *(dr.maximum(box[c], dr.gather(_Float32, lists.boxes, c * n + t)) for c in range(6)))
+    def add_sample(i, *merged):   # the box of sample i (slot i * s / q of the node) merged in
+        t = dr.gather(_UInt32, lists.ids, base + dr.select(sampled, _UInt32(_UInt64(i) * _UInt64(s) // SAMPLES), i))
+        return (i + 1, *(_max(merged[c], dr.gather(_Float32, lists.boxes, c * n + t)) for c in range(6)))
 
     bin_box = []   # per bin: 6 values (-lo, hi), -inf for a bin past the node's last
     for j in range(BINS):
         end = dr.select(j < bins, bin_start(j + 1), bin_start(j))
         empty = [dr.full(_Float32, -inf, dr.width(b)) for _ in range(6)]
-        bin_box.append(dr.while_loop((UInt32(bin_start(j)), *empty), lambda i, *_: i < end, add_sample)[1:])
+        bin_box.append(dr.while_loop((_UInt32(bin_start(j)), *empty), lambda i, *_: i < end, add_sample)[1:])
     merged = bin_box[BINS - 1]
     suffix_area = [None] * BINS    # area of the box of bins k and after
     for k in range(BINS - 1, 0, -1):
-        merged = [dr.maximum(x, y) for x, y in zip(merged, bin_box[k])]
+        merged = [_max(x, y) for x, y in zip(merged, bin_box[k])]
         suffix_area[k] = _box_area(merged)
     merged, s_float = bin_box[0], _Float64(s)
     for k in range(1, BINS):   # the split between bins k - 1 and k: the first least cost, as np.argmin
-        n_left = dr.select(few, k, UInt32(UInt64(s) * k // BINS))
+        n_left = dr.select(few, k, _UInt32(_UInt64(s) * k // BINS))
         c = _Float64(n_left) * _box_area(merged) + _Float64(s - n_left) * suffix_area[k]
         c *= 1 + 1e-6 * _Float64(dr.select(2 * n_left > s, 2 * n_left - s, s - 2 * n_left)) / s_float
         if k == 1:
@@ -255,7 +262,7 @@ def _sah(lists: _Lists, b: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.nd
         else:
             better = (k < bins) & (c < best)
             best, half = dr.select(better, c, best), dr.select(better, n_left, half)
-        merged = [dr.maximum(x, y) for x, y in zip(merged, bin_box[k])]
+        merged = [_max(x, y) for x, y in zip(merged, bin_box[k])]
     whole = _box_area(merged)
     cost = dr.select(whole > 0, 1 + best / whole, inf)
     dr.eval(axis, half, cost)
@@ -285,42 +292,42 @@ def _split(lists: _Lists, begin: np.ndarray, size: np.ndarray, split: np.ndarray
     # the slots to visit: all (a counter: the passes then read the lists as packets), or, where most are
     # in leaves already, those of the level's nodes
     compact = 2 * int(size.sum()) < lists.n
-    slots = dr.compress(lists.node != none) if compact else dr.arange(UInt32, lists.n)
-    all_left, width = dr.opaque(UInt32, int(half.sum())), dr.opaque(UInt32, dr.width(slots))
+    slots = dr.compress(lists.node != none) if compact else dr.arange(_UInt32, lists.n)
+    all_left, width = dr.opaque(_UInt32, int(half.sum())), dr.opaque(_UInt32, dr.width(slots))
 
-    node = dr.gather(UInt32, lists.node, slots)
-    k = dr.gather(UInt32, rank, node, node != none)
+    node = dr.gather(_UInt32, lists.node, slots)
+    k = dr.gather(_UInt32, rank, node, node != none)
     active = (node != none) & (k != none)
-    b_k, half_k = dr.gather(UInt32, b, k, active), dr.gather(UInt32, half_j, k, active)
-    before_k = dr.gather(UInt32, before, k, active)
+    b_k, half_k = dr.gather(_UInt32, b, k, active), dr.gather(_UInt32, half_j, k, active)
+    before_k = dr.gather(_UInt32, before, k, active)
     goes_right = slots >= b_k + half_k
     side = dr.empty(_UInt8, lists.n)     # per triangle of the level: 0 left, 1 right, 2 staying
     dr.scatter(side, dr.select(active, dr.select(goes_right, _UInt8(1), 0), 2),
-               dr.gather(UInt32, lists.ids, dr.gather(UInt32, axis_j, k, active) * n + slots))
+               dr.gather(_UInt32, lists.ids, dr.gather(_UInt32, axis_j, k, active) * n + slots))
     to_left = b_k - before_k - 1      # a left one's place: to_left + the left ones up to it, from the level's start
     to_right = half_k + before_k      # a right one's: its slot + to_right - those
-    next_node = dr.full(UInt32, none, lists.n)
+    next_node = dr.full(_UInt32, none, lists.n)
     dr.scatter(next_node, dr.select(active, 2 * k + dr.select(goes_right, 1, 0), none), slots)
     dr.eval(side, to_left, to_right, next_node)
 
-    i = dr.arange(UInt32, 3 * dr.width(slots))      # the slots of the three lists
+    i = dr.arange(_UInt32, 3 * dr.width(slots))      # the slots of the three lists
     a = dr.select(i >= 2 * width, 2, dr.select(i >= width, 1, 0))
     j = i - a * width
-    slot = dr.gather(UInt32, slots, j) if compact else j
-    moved = dr.gather(UInt32, lists.ids, a * n + slot if compact else i)
+    slot = dr.gather(_UInt32, slots, j) if compact else j
+    moved = dr.gather(_UInt32, lists.ids, a * n + slot if compact else i)
     to = dr.gather(_UInt8, side, moved)
-    left = dr.prefix_reduce(dr.ReduceOp.Add, dr.select(to == 0, UInt32(1), 0), exclusive=False) - a * all_left
-    dest = dr.select(to == 0, dr.gather(UInt32, to_left, j, to == 0) + left,
-                     dr.select(to == 1, slot + dr.gather(UInt32, to_right, j, to == 1) - left, slot))
+    left = dr.prefix_reduce(dr.ReduceOp.Add, dr.select(to == 0, _UInt32(1), 0), exclusive=False) - a * all_left
+    dest = dr.select(to == 0, dr.gather(_UInt32, to_left, j, to == 0) + left,
+                     dr.select(to == 1, slot + dr.gather(_UInt32, to_right, j, to == 1) - left, slot))
     dr.scatter(lists.spare, moved, a * n + dest)
     lists.ids, lists.spare, lists.node = lists.spare, lists.ids, next_node
     dr.eval(lists.ids, lists.node)
 
 
-def _opaque(x: np.ndarray) -> UInt32:
+def _opaque(x: np.ndarray) -> _UInt32:
     """x as a UInt32 array in memory: an array of one value would else enter the kernels as a literal,
     compiling them anew for every value."""
-    out = UInt32(np.asarray(x, np.uint32))
+    out = _UInt32(np.asarray(x, np.uint32))
     dr.make_opaque(out)
     return out
 
@@ -356,7 +363,7 @@ class BoxGrid:
         them on every side; decoded, they contain the boxes. One kernel, a lane per box, in float64
         rounded as `decode` (a step more where rounding left a corner inside the box): NumPy's passes
         over the tree's boxes took longer."""
-        q, i = [], dr.arange(UInt32, len(lo))
+        q, i = [], dr.arange(_UInt32, len(lo))
         for x, outwards, beyond in ((lo, dr.floor, -1), (hi, dr.ceil, 1)):
             x = _Float64(np.asarray(x, np.float64).ravel())
             for a in range(3):
@@ -368,7 +375,7 @@ class BoxGrid:
                     y = _Float64(_Float32(y)) if _FLOAT is np.float32 else y
                     return y > corner if beyond < 0 else y < corner
 
-                k = UInt32(dr.clip(outwards((corner - origin) / step) + beyond, 0, GRID))
+                k = _UInt32(dr.clip(outwards((corner - origin) / step) + beyond, 0, GRID))
                 q.append(dr.while_loop((k,), outside, lambda k: (k - 1 if beyond < 0 else k + 1,))[0])
         words = [q[0] | q[1] << 16, q[2] | q[3] << 16, q[4] | q[5] << 16]
         dr.eval(words)
