@@ -310,13 +310,28 @@ def _split(lists: _Lists, begin: np.ndarray, size: np.ndarray, split: np.ndarray
     dr.scatter(next_node, dr.select(active, 2 * k + dr.select(goes_right, 1, 0), none), slots)
     dr.eval(side, to_left, to_right, next_node)
 
-    i = dr.arange(_UInt32, 3 * dr.width(slots))      # the slots of the three lists
-    a = dr.select(i >= 2 * width, 2, dr.select(i >= width, 1, 0))
-    j = i - a * width
-    slot = dr.gather(_UInt32, slots, j) if compact else j
-    moved = dr.gather(_UInt32, lists.ids, a * n + slot if compact else i)
-    to = dr.gather(_UInt8, side, moved)
-    left = dr.prefix_reduce(dr.ReduceOp.Add, dr.select(to == 0, _UInt32(1), 0), exclusive=False) - a * all_left
+    def visit(i, active=True):    # slot i of the three lists' visited ones: (axis, j, slot, triangle, side)
+        a = dr.select(i >= 2 * width, 2, dr.select(i >= width, 1, 0))
+        j = i - a * width
+        slot = dr.gather(_UInt32, slots, j, active) if compact else j
+        moved = dr.gather(_UInt32, lists.ids, a * n + slot if compact else i, active)
+        return a, j, slot, moved, dr.gather(_UInt8, side, moved, active)
+
+    # the left ones as bits, 32 slots a word, and the left ones before each word: a prefix sum over
+    # the words instead of over the slots
+    total = 3 * dr.width(slots)
+    word, bits = dr.arange(_UInt32, (total + 31) // 32), _UInt32(0)
+    for bit in range(32):
+        i = 32 * word + bit
+        inside = i < 3 * width
+        bits |= dr.select(inside & (visit(i, inside)[4] == 0), _UInt32(1 << bit), 0)
+    dr.eval(bits)
+    before_word = dr.prefix_reduce(dr.ReduceOp.Add, dr.popcnt(bits))
+
+    i = dr.arange(_UInt32, total)
+    a, j, slot, moved, to = visit(i)
+    left = dr.gather(_UInt32, before_word, i >> 5) + dr.popcnt(dr.gather(_UInt32, bits, i >> 5) & ((2 << (i & 31)) - 1))
+    left -= a * all_left     # the left ones of the lists along the same axis up to this slot, inclusive
     dest = dr.select(to == 0, dr.gather(_UInt32, to_left, j, to == 0) + left,
                      dr.select(to == 1, slot + dr.gather(_UInt32, to_right, j, to == 1) - left, slot))
     dr.scatter(lists.spare, moved, a * n + dest)
