@@ -242,27 +242,34 @@ def _sah(lists: _Lists, b: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.nd
         t = dr.gather(_UInt32, lists.ids, base + dr.select(sampled, _UInt32(_UInt64(i) * _UInt64(s) // SAMPLES), i))
         return (i + 1, *(_max(merged[c], dr.gather(_Float32, lists.boxes, c * n + t)) for c in range(6)))
 
-    bin_box = []   # per bin: 6 values (-lo, hi), -inf for a bin past the node's last
-    for j in range(BINS):
-        end = dr.select(j < bins, bin_start(j + 1), bin_start(j))
-        empty = [dr.full(_Float32, -inf, dr.width(b)) for _ in range(6)]
-        bin_box.append(dr.while_loop((_UInt32(bin_start(j)), *empty), lambda i, *_: i < end, add_sample)[1:])
-    merged = bin_box[BINS - 1]
-    suffix_area = [None] * BINS    # area of the box of bins k and after
-    for k in range(BINS - 1, 0, -1):
-        merged = [_max(x, y) for x, y in zip(merged, bin_box[k])]
-        suffix_area[k] = _box_area(merged)
-    merged, s_float = bin_box[0], _Float64(s)
-    for k in range(1, BINS):   # the split between bins k - 1 and k: the first least cost, as np.argmin
-        n_left = dr.select(few, k, _UInt32(_UInt64(s) * k // BINS))
-        c = _Float64(n_left) * _box_area(merged) + _Float64(s - n_left) * suffix_area[k]
+    empty = [dr.full(_Float32, -inf, dr.width(b)) for _ in range(6)]
+
+    def with_bin(k, merged):   # merged with the box of bin k: 6 values (-lo, hi)
+        end = bin_start(k + 1)
+        return dr.while_loop((bin_start(k), *merged), lambda i, *_: i < end, add_sample)[1:]
+
+    # loops over a node's bins (as many as it has): the areas of the boxes of bins k and after, then
+    # the prefix boxes and the costs
+    node, s_float = dr.arange(_UInt32, dr.width(b)), _Float64(s)
+    suffix_area = dr.empty(_Float64, BINS * dr.width(b))
+
+    def suffix(k, *merged):
+        merged = with_bin(k, merged)
+        dr.scatter(suffix_area, _box_area(merged), node * BINS + k)
+        return (k - 1, *merged)
+
+    dr.while_loop((bins - 1, *empty), lambda k, *_: k > 0, suffix)
+
+    def split(k, best, half, *merged):   # between bins k - 1 and k: the first least cost, as np.argmin
+        n_left = dr.select(few, k, _UInt32(_UInt64(s) * _UInt64(k) // BINS))
+        c = _Float64(n_left) * _box_area(merged) + \
+            _Float64(s - n_left) * dr.gather(_Float64, suffix_area, node * BINS + k)
         c *= 1 + 1e-6 * _Float64(dr.select(2 * n_left > s, 2 * n_left - s, s - 2 * n_left)) / s_float
-        if k == 1:
-            best, half = c, n_left
-        else:
-            better = (k < bins) & (c < best)
-            best, half = dr.select(better, c, best), dr.select(better, n_left, half)
-        merged = [_max(x, y) for x, y in zip(merged, bin_box[k])]
+        better = (k == 1) | (c < best)
+        return (k + 1, dr.select(better, c, best), dr.select(better, n_left, half), *with_bin(k, merged))
+
+    _, best, half, *merged = dr.while_loop((_UInt32(1), dr.full(_Float64, inf, dr.width(b)), dr.zeros(_UInt32, dr.width(b)),
+                                            *with_bin(_UInt32(0), empty)), lambda k, *_: k < bins, split)
     whole = _box_area(merged)
     cost = dr.select(whole > 0, 1 + best / whole, inf)
     dr.eval(axis, half, cost)
