@@ -136,7 +136,7 @@ def build(tri_vertices: np.ndarray) -> Tree:
 
 
 def _triangles(tri_vertices: np.ndarray) -> tuple[_Lists, object]:
-    """The build's lists of the triangles, and their vertices (9n, as given) on the kernel backend. One
+    """The build's lists of the triangles, and their vertices (9n, as given) on the host backend. One
     kernel finds each triangle's box and centroid (min/max as NumPy's: of equal values, the second) and
     its sort keys; NumPy sorts the keys (one sort of 64-bit words per list: a centroid's bits mapped to an
     order-preserving unsigned integer, above the tie)."""
@@ -195,7 +195,7 @@ def _leaf_boxes(verts, ids: _UInt32, first: np.ndarray, count: np.ndarray) -> tu
 
 
 class _Lists:
-    """The build's per-triangle state on the kernel backend: `ids` (3n) the triangle ids of every node's
+    """The build's per-triangle state on the host backend: `ids` (3n) the triangle ids of every node's
     slots sorted along each axis, axis after axis, and `spare` another such buffer, which a level's
     partition fills (then the two swap); `centroid` (3n) and `boxes` (6n, as -lo then hi) per axis then
     triangle; `node` (n) each slot's node among its level's, NONE once in a leaf. Sizes enter the kernels
@@ -211,7 +211,7 @@ class _Lists:
 
 def _sah(lists: _Lists, b: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The binned surface area heuristic's split of each node [b, b + s) of sorted slots (s >= 2), all at
-    once, one kernel lane per node: (axis, left triangles, cost). The axis is that of the centroids' largest
+    once, a kernel lane per node: (axis, left triangles, cost). The axis is that of the centroids' largest
     extent; the node's list sorted along it is cut into min(s, BINS) bins of equal counts, and a split lies
     between two bins. Its cost, in steps of the walk (an inner node or a triangle test each), is
     1 + (A_l n_l + A_r n_r) / A: the node's own step, then each child's triangles weighted by the chance
@@ -219,7 +219,7 @@ def _sah(lists: _Lists, b: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.nd
     SAMPLES / BINS triangles evenly spread over it (all of them in a node of up to SAMPLES). Near-equal costs
     go to the more even split (so that equal triangles do not make a chain). Boxes are float32 (their
     maxima exact), areas and costs float64, each operation rounded as written (the LLVM backend fuses no
-    multiply-add unasked), so the splits do not depend on the backend."""
+    multiply-add unasked): the splits are those of the NumPy build this replaced."""
     n, inf = lists.stride, float("inf")
     b, s = _opaque(b), _opaque(s)
 
@@ -239,7 +239,8 @@ def _sah(lists: _Lists, b: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.nd
         return dr.select(few, j, q * j // BINS)
 
     def add_sample(i, *merged):   # the box of sample i (slot i * s / q of the node) merged in
-        t = dr.gather(_UInt32, lists.ids, base + dr.select(sampled, _UInt32(_UInt64(i) * _UInt64(s) // SAMPLES), i))
+        slot = dr.select(sampled, _UInt32(_UInt64(i) * _UInt64(s) // SAMPLES), i)
+        t = dr.gather(_UInt32, lists.ids, base + slot)
         return (i + 1, *(_max(merged[c], dr.gather(_Float32, lists.boxes, c * n + t)) for c in range(6)))
 
     empty = [dr.full(_Float32, -inf, dr.width(b)) for _ in range(6)]
@@ -268,8 +269,9 @@ def _sah(lists: _Lists, b: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.nd
         better = (k == 1) | (c < best)
         return (k + 1, dr.select(better, c, best), dr.select(better, n_left, half), *with_bin(k, merged))
 
-    _, best, half, *merged = dr.while_loop((_UInt32(1), dr.full(_Float64, inf, dr.width(b)), dr.zeros(_UInt32, dr.width(b)),
-                                            *with_bin(_UInt32(0), empty)), lambda k, *_: k < bins, split)
+    state = (_UInt32(1), dr.full(_Float64, inf, dr.width(b)), dr.zeros(_UInt32, dr.width(b)),
+             *with_bin(_UInt32(0), empty))
+    _, best, half, *merged = dr.while_loop(state, lambda k, *_: k < bins, split)
     whole = _box_area(merged)
     cost = dr.select(whole > 0, 1 + best / whole, inf)
     dr.eval(axis, half, cost)
@@ -288,8 +290,10 @@ def _split(lists: _Lists, begin: np.ndarray, size: np.ndarray, split: np.ndarray
     its list along axis[i] (half, axis: of the splitting nodes) form the left child, and every axis's list
     is partitioned stably, left child first; `lists.node` becomes each slot's node on the next level (the
     children, in order). A pass over the level's slots finds each triangle's side (left, right, or
-    staying: in a node that does not split), reading the lists along the nodes' axes; a prefix sum over
-    the three lists counts the left ones, and a last pass moves every slot to its place in `lists.spare`.
+    staying: in a node that does not split), reading the lists along the nodes' axes; a pass over the
+    three lists marks the left ones, as bits, 32 slots a word; a prefix sum over the words' counts and a
+    last pass, counting the bits before each slot in its word, move every slot to its place in
+    `lists.spare`.
     The slots of a level's leaves are copied on their own level, and may be left alone after (both
     buffers then hold them), so that the deep levels, most of whose slots are in leaves, cost less."""
     n, none = lists.stride, _Lists.NONE
@@ -311,18 +315,18 @@ def _split(lists: _Lists, begin: np.ndarray, size: np.ndarray, split: np.ndarray
     side = dr.empty(_UInt8, lists.n)     # per triangle of the level: 0 left, 1 right, 2 staying
     dr.scatter(side, dr.select(active, dr.select(goes_right, _UInt8(1), 0), 2),
                dr.gather(_UInt32, lists.ids, dr.gather(_UInt32, axis_j, k, active) * n + slots))
-    to_left = b_k - before_k - 1      # a left one's place: to_left + the left ones up to it, from the level's start
-    to_right = half_k + before_k      # a right one's: its slot + to_right - those
+    to_left = b_k - before_k - 1      # a left one's place: to_left + the left ones up to it from the level's
+    to_right = half_k + before_k      # first slot; a right one's: its slot + to_right - those
     next_node = dr.full(_UInt32, none, lists.n)
     dr.scatter(next_node, dr.select(active, 2 * k + dr.select(goes_right, 1, 0), none), slots)
     dr.eval(side, to_left, to_right, next_node)
 
-    def visit(i, active=True):    # slot i of the three lists' visited ones: (axis, j, slot, triangle, side)
+    def visit(i, inside=True):    # slot i of the three lists' visited ones: (axis, j, slot, triangle, side)
         a = dr.select(i >= 2 * width, 2, dr.select(i >= width, 1, 0))
         j = i - a * width
-        slot = dr.gather(_UInt32, slots, j, active) if compact else j
-        moved = dr.gather(_UInt32, lists.ids, a * n + slot if compact else i, active)
-        return a, j, slot, moved, dr.gather(_UInt8, side, moved, active)
+        slot = dr.gather(_UInt32, slots, j, inside) if compact else j
+        moved = dr.gather(_UInt32, lists.ids, a * n + slot if compact else i, inside)
+        return a, j, slot, moved, dr.gather(_UInt8, side, moved, inside)
 
     # the left ones as bits, 32 slots a word, and the left ones before each word: a prefix sum over
     # the words instead of over the slots
@@ -337,8 +341,10 @@ def _split(lists: _Lists, begin: np.ndarray, size: np.ndarray, split: np.ndarray
 
     i = dr.arange(_UInt32, total)
     a, j, slot, moved, to = visit(i)
-    left = dr.gather(_UInt32, before_word, i >> 5) + dr.popcnt(dr.gather(_UInt32, bits, i >> 5) & ((2 << (i & 31)) - 1))
-    left -= a * all_left     # the left ones of the lists along the same axis up to this slot, inclusive
+    word = i >> 5
+    up_to = (2 << (i & 31)) - 1       # this slot's bit and those below it
+    left = dr.gather(_UInt32, before_word, word) + dr.popcnt(dr.gather(_UInt32, bits, word) & up_to)
+    left -= a * all_left     # the left ones of the list along this axis up to this slot, inclusive
     dest = dr.select(to == 0, dr.gather(_UInt32, to_left, j, to == 0) + left,
                      dr.select(to == 1, slot + dr.gather(_UInt32, to_right, j, to == 1) - left, slot))
     dr.scatter(lists.spare, moved, a * n + dest)
