@@ -144,7 +144,7 @@ def _triangles(tri_vertices: np.ndarray) -> tuple[_Lists, object]:
         raise BackendError(f"the BVH build runs on Dr.Jit's LLVM backend, which is unavailable: {LLVM_FIX}")
     v = tri_vertices if tri_vertices.dtype in (np.float32, np.float64) else tri_vertices.astype(np.float64)
     n, real = len(v), _Float32 if v.dtype == np.float32 else _Float64
-    verts = real(np.ascontiguousarray(v).ravel())
+    verts = _host(real, v)
     t, stride = dr.arange(_UInt32, n), dr.opaque(_UInt32, n)
     centroid, boxes, bits = dr.empty(_Float32, 3 * n), dr.empty(_Float32, 6 * n), dr.empty(_UInt32, 3 * n)
     for a in range(3):
@@ -174,7 +174,7 @@ def _triangles(tri_vertices: np.ndarray) -> tuple[_Lists, object]:
         key |= position
         key.sort()
         ids.append(after[key.astype(np.uint32)])
-    return _Lists(n, _UInt32(np.concatenate(ids)), centroid, boxes), verts
+    return _Lists(n, _host(_UInt32, np.concatenate(ids)), centroid, boxes), verts
 
 
 def _leaf_boxes(verts, ids: _UInt32, first: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -331,11 +331,16 @@ def _split(lists: _Lists, begin: np.ndarray, size: np.ndarray, split: np.ndarray
     # the left ones as bits, 32 slots a word, and the left ones before each word: a prefix sum over
     # the words instead of over the slots
     total = 3 * dr.width(slots)
-    word, bits = dr.arange(_UInt32, (total + 31) // 32), _UInt32(0)
-    for bit in range(32):
-        i = 32 * word + bit
-        inside = i < 3 * width
-        bits |= dr.select(inside & (visit(i, inside)[4] == 0), _UInt32(1 << bit), 0)
+    word = dr.arange(_UInt32, (total + 31) // 32)
+
+    def mark(bit, bits):   # eight bits a step: a loop small enough to compile fast, unrolled enough to run fast
+        for b in range(8):
+            i = 32 * word + bit + b
+            inside = i < 3 * width
+            bits |= dr.select(inside & (visit(i, inside)[4] == 0), _UInt32(1) << (bit + b), 0)
+        return bit + 8, bits
+
+    bits = dr.while_loop((_UInt32(0), dr.zeros(_UInt32, dr.width(word))), lambda bit, _: bit < 32, mark)[1]
     dr.eval(bits)
     before_word = dr.prefix_reduce(dr.ReduceOp.Add, dr.popcnt(bits))
 
@@ -355,9 +360,16 @@ def _split(lists: _Lists, begin: np.ndarray, size: np.ndarray, split: np.ndarray
 def _opaque(x: np.ndarray) -> _UInt32:
     """x as a UInt32 array in memory: an array of one value would else enter the kernels as a literal,
     compiling them anew for every value."""
-    out = _UInt32(np.asarray(x, np.uint32))
+    out = _host(_UInt32, np.asarray(x, np.uint32))
     dr.make_opaque(out)
     return out
+
+
+def _host(kind: type, a: np.ndarray):
+    """`a`, flattened, as a host array of type `kind`, in memory starting on a cache line: Dr.Jit wraps a
+    NumPy array's memory as it is, and a kernel reading it compiles anew for each alignment it finds."""
+    a = np.ascontiguousarray(a).ravel()
+    return kind(a if a.ctypes.data % 64 == 0 else _aligned(a))
 
 
 def depth_first(tree: Tree) -> np.ndarray:
@@ -393,7 +405,7 @@ class BoxGrid:
         over the tree's boxes took longer."""
         q, i = [], dr.arange(_UInt32, len(lo))
         for x, outwards, beyond in ((lo, dr.floor, -1), (hi, dr.ceil, 1)):
-            x = _Float64(np.asarray(x, np.float64).ravel())
+            x = _host(_Float64, np.asarray(x, np.float64))
             for a in range(3):
                 step, origin = (dr.opaque(_Float64, float(v[a])) for v in (self.step, self.origin))
                 corner = dr.gather(_Float64, x, 3 * i + a)
