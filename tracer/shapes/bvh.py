@@ -8,8 +8,8 @@ equal counts, where the expected cost of a ray's walk through the children is le
 LEAF_SIZE triangles stays a leaf where that is cheaper than splitting it. All the nodes of a level are
 split at once, by a few Dr.Jit kernels over the triangles (on the host: the LLVM backend, whatever the
 tracer's), with NumPy for the sorts and the per-level bookkeeping: in NumPy alone the levels' dozens of
-passes and temporaries took 2.5 to 5 times as long at 0.25 to 1 million triangles (below some 10,000 the
-kernel launches make the build slower, by a few hundredths of a second). The kernels round as the NumPy
+passes and temporaries took 3 to 5 times as long at 0.1 to 1 million triangles (below some 1,000 the
+kernel launches make the build slower, by a few thousandths of a second). The kernels round as the NumPy
 build did (float32 boxes, float64 areas and costs, no fused multiply-add, min/max keeping the second of
 equal values), so the tree is the same, bit for bit.
 
