@@ -9,7 +9,7 @@ import tracer.geometry as geometry
 import drjit as dr
 
 from tracer.shapes.bvh import (BINS, LEAF_BIT, LEAF_SIZE, WIDTH, BVHKernel, _aligned, build, depth_first,
-                               wide_children)
+                               layout, wide_children)
 from tracer.jit import NO_PRIM, Array3f, ArrayXu, Bool, Float, UInt32
 
 from .conftest import SCENES
@@ -218,6 +218,23 @@ def test_build_of_equal_triangles_stays_balanced():
     which would need a deep traversal stack)."""
     tree = build(np.tile(np.eye(3), (1000, 1, 1)))
     assert len(tree.levels) <= 10 and (tree.count[~tree.inner] <= LEAF_SIZE).all()
+
+
+def test_build_compiles_no_kernel_anew_for_another_mesh():
+    """The build's kernels take sizes, counts and grid constants as opaque values: a mesh of another size
+    and extent reuses every kernel of the previous build (a value baked into a kernel as a literal would
+    compile it anew for every scene: most of a second)."""
+    rng = np.random.default_rng(13)
+    layout(rng.uniform(-1, 1, (3000, 3, 3)))
+    history = dr.flag(dr.JitFlag.KernelHistory)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()    # clears it
+        layout(rng.uniform(-1, 1, (2345, 3, 3)) * [3.0, 0.5, 2.0] + 10)
+        kernels = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, history)
+    assert kernels and all(k["cache_hit"] for k in kernels)
 
 
 def test_the_disk_cache_folder(monkeypatch, tmp_path):
