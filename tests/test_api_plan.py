@@ -39,7 +39,7 @@ def test_the_branching_tree_is_refused_with_what_fits():
 
 def test_the_default_report_settings_fit_comfortably():
     plan = plan_render(600, 600, 1, "report", 4, slots=8, direct=16, memory=4 * GIB)
-    assert plan.peak_bytes < GIB and plan.chunk == 8192
+    assert plan.peak_bytes < GIB and plan.chunk == 32768
 
 
 def test_a_huge_image_is_refused_with_a_size_that_fits():

@@ -28,7 +28,7 @@ from .errors import PlanError
 
 MAX_PASS_SAMPLES = 1 << 32  # sample indices are 32-bit within a pass
 PATH_CHUNK = 1 << 21        # samples per path-tracing launch
-REPORT_BUDGET = 1 << 23     # worst-case rays per report-estimator level, which sets its launch size
+REPORT_BUDGET = 1 << 25     # worst-case rays per report-estimator level, which sets its launch size
 MAX_LANES = 1 << 32         # lanes of one Dr.Jit array (32-bit indices)
 
 IMAGE_BYTES = 12            # per pixel of a developed image: float32 RGB
