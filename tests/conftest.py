@@ -36,6 +36,20 @@ def plugin_passes(scene_name: str, estimator: str, max_depth: int, seed: int, ed
                      for k in range(PASSES)])
 
 
+def kernel_hashes(run) -> set[str]:
+    """The hashes of the Dr.Jit kernels `run()` launches (compiled or from a cache alike)."""
+    import drjit as dr
+
+    history = dr.flag(dr.JitFlag.KernelHistory)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()    # clears it
+        run()
+        return {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, history)
+
+
 @pytest.fixture
 def scenes() -> Path:
     return SCENES

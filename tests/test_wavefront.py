@@ -15,7 +15,7 @@ from tracer.sampling import seeded_rng
 from tracer.shapes import BVH_THRESHOLD
 from tracer.shapes.bvh import BATCH_LANES, BATCHED_WALKS, BVHKernel
 
-from .conftest import SCENES
+from .conftest import SCENES, kernel_hashes
 
 N = 3 * BATCH_LANES + 123     # rays: every lane takes several, the last ones a part
 
@@ -116,3 +116,15 @@ def test_the_branching_estimators_levels_walk_the_bvh_batched(monkeypatch, reque
     monkeypatch.setattr(geo, "batched", nullcontext)
     in_kernel = render(scene, "report", spp=2, seed=3, max_depth=4, direct=2, indirect=2, geometry=geo).image
     np.testing.assert_array_equal(batched, in_kernel)
+
+
+def test_a_batch_of_another_size_compiles_no_kernel_anew(kernel_and_rays):
+    """The batch's size enters the walk's kernel as an opaque value: each bounce of a render (a batch of
+    its own size) runs the same kernels (a literal made one per bounce, compiled anew for every render
+    of another size or spp: over a second). Compared by kernel hash, whatever Dr.Jit's disk cache holds."""
+    kernel, o, d, rng = kernel_and_rays
+    dist = Float(rng.uniform(0.01, 2.5, N))
+    none = UInt32(NO_PRIM)
+    walks = [kernel_hashes(lambda: kernel.occluded(o, d, dist, none, none, Bool(rng.uniform(size=N) < p),
+                                                   batch=True).numpy()) for p in (0.9, 0.8, 0.6)]
+    assert walks[2] and walks[2] == walks[1]     # (the first walk's kernel may differ by a lazily made table)

@@ -614,6 +614,7 @@ class BVHKernel:
         dr.eval(*ray, *first, *out)
         lanes, none, k, m = min(BATCH_LANES, n), UInt32(0xFFFFFFFF), len(ray), len(payload)
         counter = UInt32(lanes)       # the next ray to take
+        count = dr.opaque(UInt32, n)  # not a literal: one kernel serves every batch size
         empty = tuple(UInt32(none) for _ in range(self.stack_size))
 
         def fetch(r: UInt32, take: Bool) -> tuple:
@@ -624,7 +625,7 @@ class BVHKernel:
                     *(dr.gather(type(x), x, i, take) for x in first))
 
         def cond(step, r, *lane):
-            return r < n
+            return r < count
 
         def body(step, r, item, *rest):
             values, (slope, offset), payload, stack = rest[:k], rest[k:k + 2], rest[k + 2:k + 2 + m], rest[k + 2 + m:]
@@ -638,7 +639,7 @@ class BVHKernel:
                 for target, value in zip(out, lane[k + 3:k + 3 + m]):
                     dr.scatter(target, value, i, take)
                 r = dr.select(take, dr.scatter_inc(counter, UInt32(0), take), r)
-                new = take & (r < n)
+                new = take & (r < count)
                 fresh = (*fetch(r, new), *empty)
                 return (r, *(dr.select(take, a, b) for a, b in zip(fresh, lane)))
 
