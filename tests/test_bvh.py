@@ -8,8 +8,8 @@ import tracer
 import tracer.geometry as geometry
 import drjit as dr
 
-from tracer.shapes.bvh import (BINS, LEAF_BIT, LEAF_SIZE, WIDTH, BVHKernel, _aligned, build, depth_first,
-                               layout, wide_children)
+from tracer.shapes.bvh import LEAF_BIT, WIDTH, BVHKernel, layout, wide_children
+from tracer.shapes.bvh_build import BINS, LEAF_SIZE, aligned, build, depth_first
 from tracer.jit import NO_PRIM, Array3f, ArrayXu, Bool, Float, UInt32
 
 from .conftest import SCENES, kernel_hashes
@@ -156,7 +156,7 @@ def test_decoded_node_boxes_contain_their_triangles(offset, extent):
 def test_device_tables_start_on_a_cache_line(offset):
     """Dr.Jit turns gathers into packet loads only from aligned memory."""
     a = np.arange(1000, dtype=np.float32)[offset:]
-    out = _aligned(a)
+    out = aligned(a)
     assert out.ctypes.data % 64 == 0 and out.dtype == a.dtype
     np.testing.assert_array_equal(out, a)
 

@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .bvh import LEAF_BIT, LEAF_SIZE, WIDTH, Layout, layout
+from .bvh import LEAF_BIT, WIDTH, Layout, layout
+from .bvh_build import LEAF_SIZE
 
 FORMAT = 3            # bump when Layout or the build changes (2: SAH build, leaves of up to 4; 3: 4-wide rows)
 IN_MEMORY = 4         # layouts kept in this process
