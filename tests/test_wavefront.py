@@ -128,3 +128,42 @@ def test_a_batch_of_another_size_compiles_no_kernel_anew(kernel_and_rays):
     walks = [kernel_hashes(lambda: kernel.occluded(o, d, dist, none, none, Bool(rng.uniform(size=N) < p),
                                                    batch=True).numpy()) for p in (0.9, 0.8, 0.6)]
     assert walks[2] and walks[2] == walks[1]     # (the first walk's kernel may differ by a lazily made table)
+
+
+def test_a_batch_of_one_ray_is_its_walk(kernel_and_rays):
+    """A batch of a single ray (the last path still going, say): its payload holds one value, which the
+    batch must copy into buffers of their own before scattering into them."""
+    kernel, o, d, _ = kernel_and_rays
+    one_o, one_d = (Array3f(*v.numpy()[:, :1]) for v in (o, d))
+    none = UInt32(NO_PRIM)
+    walk = kernel.closest_hit(one_o, one_d, 0.0, Float(2.0), none, Float(0), Float(0), none)
+    batch = kernel.closest_hit(one_o, one_d, 0.0, Float(2.0), none, Float(0), Float(0), none, batch=True)
+    for a, b in zip(walk, batch):
+        np.testing.assert_array_equal(a.numpy(), b.numpy())
+    assert (kernel.occluded(one_o, one_d, Float(9.0), none, none, batch=True).numpy()
+            == kernel.occluded(one_o, one_d, Float(9.0), none, none).numpy()).all()
+
+
+def test_unbounded_paths_bounce_by_bounce_are_the_paths_in_one_kernel(tmp_path):
+    """max_depth -1: the last bounces hold a few paths, down to one."""
+    import drjit as dr
+
+    from tracer.rendering import render
+    from validation.mesh_scene import write_mesh_scene
+
+    scene = tracer.load_scene(write_mesh_scene(tmp_path, 3000), width=12, height=12)
+    geo = SceneGeometry(scene)
+    assert geo.meshes.bvh is not None
+    threads = dr.thread_count()
+    dr.set_thread_count(1)        # the film adds samples atomically: in any order with two threads
+    try:
+        bounces = render(scene, "path", spp=4, seed=2, max_depth=-1, geometry=geo)
+        path_integrator.BATCHED_WALKS, saved = False, path_integrator.BATCHED_WALKS
+        try:
+            one_kernel = render(scene, "path", spp=4, seed=2, max_depth=-1, geometry=geo)
+        finally:
+            path_integrator.BATCHED_WALKS = saved
+    finally:
+        dr.set_thread_count(threads)
+    assert bounces.rays == one_kernel.rays
+    np.testing.assert_array_equal(bounces.image, one_kernel.image)

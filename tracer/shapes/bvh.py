@@ -363,5 +363,8 @@ class BVHKernel:
 
 
 def _batch_array(x, width: int):
-    """A fresh array of `width` values: x's, or x repeated if it holds one (a target for dr.scatter)."""
-    return dr.tile(x, width) if dr.width(x) == 1 else dr.copy(x)
+    """An array of `width` values in a buffer of its own (a target for dr.scatter): x's, or x repeated if it
+    holds one. dr.copy and dr.tile may hand back x's own variable, or one shared with an equal array."""
+    out = dr.empty(type(x), width)
+    dr.scatter(out, x, dr.arange(UInt32, width))
+    return out
