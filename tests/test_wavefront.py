@@ -167,3 +167,10 @@ def test_unbounded_paths_bounce_by_bounce_are_the_paths_in_one_kernel(tmp_path):
         dr.set_thread_count(threads)
     assert bounces.rays == one_kernel.rays
     np.testing.assert_array_equal(bounces.image, one_kernel.image)
+
+
+def test_info_says_which_scenes_go_bounce_by_bounce():
+    room = SceneGeometry(tracer.load_scene(SCENES / "hexagon_room.xml"))
+    meshes = SceneGeometry(tracer.load_scene(SCENES / "cornell_box.xml"), bvh_threshold=0)
+    assert not any("bounce by bounce" in line for line in room.describe())
+    assert any("bounce by bounce" in line for line in meshes.describe()) == BATCHED_WALKS

@@ -277,4 +277,7 @@ class SceneGeometry:
         points = f", {len(self.points)} point light(s)" if self.points else ""
         points += f", {len(self.directionals)} directional light(s)" if self.directionals else ""
         lines.append(f"light sampling: {len(self.emitters)} area light(s){points}{env}")
+        if self.meshes.bvh is not None and BATCHED_WALKS:
+            lines.append("path tracing: bounce by bounce, each bounce's rays walked through the BVH by persistent "
+                         "lanes")
         return lines
