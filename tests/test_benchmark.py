@@ -61,3 +61,21 @@ def test_mesh_profile_counts_on_a_small_mesh(monkeypatch, tmp_path):
     assert p["closest_batch_seconds"] > 0 and p["shadow_batch_seconds"] > 0
     assert 1 <= p["steps_mean"] <= p["bvh_rows"] and p["tests_mean"] > 0
     assert 1 / mesh_profile.PACKET <= p["packet_busy"] < 1   # walks of different lengths leave lanes idle
+
+
+def test_a_renders_time_is_split_into_its_walks_and_the_rest(tmp_path):
+    import tracer
+    import tracer.shapes.bvh as bvh
+    from tracer.geometry import SceneGeometry
+    from tracer.rendering import render
+    from validation import mesh_profile
+
+    scene = tracer.load_scene(benchmark._sphere_scene(tmp_path, 500), width=32, height=32)
+    geo = SceneGeometry(scene)
+    p = mesh_profile.profile_render(lambda: render(scene, "path", spp=4, max_depth=4, geometry=geo).render_seconds)
+    if not bvh.BATCHED_WALKS:     # the walks run inside the render's kernels: nothing to time apart
+        assert p["closest_walk_seconds"] == p["shadow_walk_seconds"] == 0
+        return
+    assert p["closest_walk_seconds"] > 0 and p["shadow_walk_seconds"] > 0
+    assert 0 < p["rest_seconds"] < p["timed_render_seconds"]
+    assert bvh._walk_seconds is None            # timing is off again after the render

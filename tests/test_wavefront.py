@@ -110,7 +110,7 @@ def test_the_branching_estimators_levels_walk_the_bvh_batched(monkeypatch, reque
     geo = SceneGeometry(scene, bvh_threshold=0)
     walks = []
     batch = geo.meshes.bvh._walk_batch
-    monkeypatch.setattr(geo.meshes.bvh, "_walk_batch", lambda *a: walks.append(1) or batch(*a))
+    monkeypatch.setattr(geo.meshes.bvh, "_walk_batch", lambda *a, **kw: walks.append(1) or batch(*a, **kw))
     batched = render(scene, "report", spp=2, seed=3, max_depth=4, direct=2, indirect=2, geometry=geo).image
     assert bool(walks) == BATCHED_WALKS
     monkeypatch.setattr(geo, "batched", nullcontext)

@@ -83,9 +83,12 @@ def _child(job: dict) -> dict:
            "rays": runs[-1][3], "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
     out.update(split)
     if job.get("profile"):
-        from .mesh_profile import profile_mitsuba, profile_tracer
+        from .mesh_profile import profile_mitsuba, profile_render, profile_tracer
 
-        out["profile"] = profile_mitsuba(mi, scene) if job["renderer"] == "mitsuba" else profile_tracer(geometry)
+        if job["renderer"] == "mitsuba":
+            out["profile"] = profile_mitsuba(mi, scene)
+        else:
+            out["profile"] = profile_tracer(geometry) | profile_render(lambda: run(REPEATS + 1)[1])
     if job.get("save_image"):
         np.save(job["save_image"], runs[-1][0])
     return out
@@ -539,7 +542,9 @@ def mesh_markdown(rows: dict) -> list[str]:
               "(`BVHKernel.closest_hit_work`). The tracer walks its BVH in two ways: inside the kernel that asks "
               "(each lane its own ray to the end, so a packet of lanes takes as many steps as its longest walk), or "
               "batched, over rays in memory, by persistent lanes that each take the next ray when theirs is done "
-              "(`BVHKernel._walk_batch`); renders use the batched walk, on the LLVM backend.",
+              "(`BVHKernel._walk_batch`); renders use the batched walk, on the LLVM backend. One more render "
+              "times its walks (`tracer.shapes.bvh.timed_walks`: each walk waits for its inputs and its end, so "
+              "that render takes a little longer than the others).",
               ""]
     header = "| | " + " | ".join(f"tracer, {row['triangles']:,} | Mitsuba, {row['triangles']:,}" for row in rows.values()) + " |"
     lines += [header, "|---|" + "---:|" * (2 * len(rows))]
@@ -551,6 +556,9 @@ def mesh_markdown(rows: dict) -> list[str]:
                 out.append(f(x) if f is not None else "–")
         return " | ".join(out)
 
+    def walks(key):   # "–" where a run from before the key was measured has none
+        return lambda x: f"{x['profile'][key]:.2f}" if key in x["profile"] else "–"
+
     def rate(key):   # "–" where a run from before the key was measured has none
         return lambda x: f"{x['profile']['rays'] / x['profile'][key] / 1e6:.1f} M" if key in x["profile"] else "–"
     lines += [
@@ -561,6 +569,11 @@ def mesh_markdown(rows: dict) -> list[str]:
         "| first render: kernel compile (Dr.Jit's kernel cache as the bench left it) [s] | " + cells(lambda x: f"{x['first_compile']:.2f}", None) + " |",
         "| render [s] | " + cells(lambda x: f"{x['median']:.2f}", lambda x: f"{x['median']:.2f}") + " |",
         "| rays traced per render (closest hit + shadow) | " + cells(lambda x: f"{x['rays'] / 1e6:.1f} M", None) + " |",
+        "| a render with its BVH walks timed [s] | " + cells(walks("timed_render_seconds"), None) + " |",
+        "| of which closest-hit walks [s] | " + cells(walks("closest_walk_seconds"), None) + " |",
+        "| of which shadow-ray walks [s] | " + cells(walks("shadow_walk_seconds"), None) + " |",
+        "| of which the rest: camera rays, shading, light samples, compaction between bounces [s] | "
+        + cells(walks("rest_seconds"), None) + " |",
         "| closest-hit queries alone, batched walk (the renders') [rays/s] | "
         + cells(rate("closest_batch_seconds"), rate("closest_seconds")) + " |",
         "| closest-hit queries alone, walk in the caller's kernel [rays/s] | " + cells(rate("closest_seconds"), None) + " |",

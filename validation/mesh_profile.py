@@ -81,6 +81,19 @@ def profile_tracer(geometry) -> dict:
     return out
 
 
+def profile_render(render_once) -> dict:
+    """Where one render's time goes: render_once() -> its seconds, run with the batched BVH walks timed
+    (tracer.shapes.bvh.timed_walks: each walk waits for its inputs and its end, so this render takes a
+    little longer than an untimed one). Returns its seconds and those of the closest-hit and shadow walks."""
+    from tracer.shapes.bvh import timed_walks
+
+    with timed_walks() as walks:
+        seconds = render_once()
+    closest, shadow = walks.get("closest hit", 0.0), walks.get("shadow", 0.0)
+    return {"timed_render_seconds": seconds, "closest_walk_seconds": closest, "shadow_walk_seconds": shadow,
+            "rest_seconds": seconds - closest - shadow}
+
+
 def profile_mitsuba(mi, scene) -> dict:
     """Rays per second of Mitsuba's preliminary intersection and shadow test on the same rays."""
     bbox = scene.bbox()

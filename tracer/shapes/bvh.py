@@ -24,7 +24,10 @@ line: from memory it finds unaligned, Dr.Jit gathers value by value instead of i
 """
 from __future__ import annotations
 
+import time
+from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import partial
 
 import drjit as dr
 import numpy as np
@@ -42,6 +45,7 @@ BATCH_LANES = 4096     # persistent lanes of a batched walk (_walk_batch)
 REFILL_PERIOD = 2      # a batched walk's done lanes take new rays every this many steps
 BATCHED_WALKS = BACKEND == "llvm"   # measured on the CPU's SIMD packets; a GPU keeps the walk in the kernel
 _FLOAT, _UINT = (np.float64, np.uint64) if PRECISION == "double" else (np.float32, np.uint32)
+_walk_seconds: dict[str, float] | None = None    # see timed_walks
 _UINT_JIT = UInt64 if PRECISION == "double" else UInt32
 
 
@@ -254,7 +258,8 @@ class BVHKernel:
         out = dr.while_loop(state, cond, body)
         return (*out[1 + c:1 + c + n], *out[1:1 + c])
 
-    def _walk_batch(self, ray: tuple, active: Bool, t_max, visit_triangle, finished, payload: tuple) -> tuple:
+    def _walk_batch(self, ray: tuple, active: Bool, t_max, visit_triangle, finished, payload: tuple,
+                    kind: str = "") -> tuple:
         """The walk of _walk over a batch of rays held in memory, by persistent lanes (Aila and Laine,
         "Understanding the efficiency of ray traversal on GPUs", 2009): BATCH_LANES lanes each take the
         next untraced ray from a shared counter when theirs is done, so that a packet of lanes keeps
@@ -262,7 +267,7 @@ class BVHKernel:
         a packet's lanes are idle in _walk). A done lane takes its next ray every REFILL_PERIOD steps, so the
         fetch runs for several lanes at once. Each ray's walk, and so its result, is that of _walk.
         `ray` and `payload`: arrays of one value per ray (or one for all); returns the payload per ray,
-        unchanged where not active."""
+        unchanged where not active. `kind`: the query, for timed_walks."""
         width = max(dr.width(x) for x in (*ray, *payload, active))
         first = tuple(_batch_array(x, width) for x in payload)   # each ray's payload at its start
         out = tuple(_batch_array(x, width) for x in payload)
@@ -307,8 +312,16 @@ class BVHKernel:
                               lambda *lane: lane)
             return (step, *lane)
 
+        timed = _walk_seconds is not None
+        if timed:
+            dr.sync_thread()
+            start = time.perf_counter()
         dr.while_loop((UInt32(0), dr.arange(UInt32, lanes), *fetch(dr.arange(UInt32, lanes), Bool(True)), *empty),
                       cond, body)
+        if timed:
+            dr.eval(*out)
+            dr.sync_thread()
+            _walk_seconds[kind] = _walk_seconds.get(kind, 0.0) + time.perf_counter() - start
         return out
 
     def _triangle(self, slot, o, d, t_min, t_max, skip, target):
@@ -334,7 +347,7 @@ class BVHKernel:
             return (dr.select(closer, t, t_best), dr.select(closer, tri_prim, prim),
                     dr.select(closer, u, b1), dr.select(closer, v, b2))
 
-        walk = self._walk_batch if batch else self._walk
+        walk = partial(self._walk_batch, kind="closest hit") if batch else self._walk
         return walk((o, d, Float(t_min), UInt32(skip)), Bool(True), lambda ray, t_best, *_: t_best,
                     visit_triangle, lambda *_: Bool(False), (Float(t_best), UInt32(prim), Float(b1), Float(b2)))
 
@@ -346,7 +359,7 @@ class BVHKernel:
             o, d, dist, skip, target = ray
             return (blocked | (self._triangle(slot, o, d, 0.0, dist, skip, target)[0] < dist),)
 
-        walk = self._walk_batch if batch else self._walk
+        walk = partial(self._walk_batch, kind="shadow") if batch else self._walk
         return walk((o, d, Float(dist), UInt32(skip), UInt32(target)), Bool(active), lambda ray, _: ray[2],
                     visit_triangle, lambda blocked: blocked, (Bool(False),))[0]
 
@@ -360,6 +373,19 @@ class BVHKernel:
         _, steps, tests = self._walk((o, d), Bool(True), lambda ray, t_best: t_best, visit_triangle,
                                      lambda *_: Bool(False), (Float(INF),), count_work=True)
         return steps, tests
+
+
+@contextmanager
+def timed_walks():
+    """Within: each batched walk waits for its inputs, then for its own end, and adds its seconds to the dict
+    yielded, by query ("closest hit", "shadow"). For validate bench's account of a render's time; the
+    waits keep the next kernels from overlapping a walk, so a timed render takes a little longer."""
+    global _walk_seconds
+    _walk_seconds = {}
+    try:
+        yield _walk_seconds
+    finally:
+        _walk_seconds = None
 
 
 def _batch_array(x, width: int):
