@@ -35,7 +35,7 @@ from drjit.llvm import Float as _Float32, Float64 as _Float64, UInt32 as _UInt32
 
 from .bvh_build import Tree, aligned, aligned_zeros, build, depth_first, host_array, select_max, select_min
 from .triangle import ray_triangle
-from ..jit import BACKEND, INF, PRECISION, Array3f, ArrayXf, ArrayXu, Bool, Float, UInt32, UInt64
+from ..jit import BACKEND, HOST_FLOAT, INF, PRECISION, Array3f, ArrayXf, ArrayXu, Bool, Float, UInt32, UInt64
 
 GRID = 0xFFFF          # largest grid coordinate of a node's box corner
 LEAF_BIT = 1 << 31     # marks a leaf's link word
@@ -44,7 +44,7 @@ MASK = (1 << WIDTH) - 1    # an inner link's low bits: the row's child slots sti
 BATCH_LANES = 4096     # persistent lanes of a batched walk (_walk_batch)
 REFILL_PERIOD = 2      # a batched walk's done lanes take new rays every this many steps
 BATCHED_WALKS = BACKEND == "llvm"   # measured on the CPU's SIMD packets; a GPU keeps the walk in the kernel
-_FLOAT, _UINT = (np.float64, np.uint64) if PRECISION == "double" else (np.float32, np.uint32)
+_UINT = np.uint64 if PRECISION == "double" else np.uint32   # a prim id stored in a HOST_FLOAT's bits
 _walk_seconds: dict[str, float] | None = None    # see timed_walks
 _UINT_JIT = UInt64 if PRECISION == "double" else UInt32
 
@@ -62,7 +62,7 @@ class BoxGrid:
 
     def decode(self, q: np.ndarray) -> np.ndarray:
         """Corners (n, 3) as the kernel computes them: the exact origin + q * step, rounded once."""
-        return (q * self.step.astype(np.float64) + self.origin).astype(_FLOAT)
+        return (q * self.step.astype(np.float64) + self.origin).astype(HOST_FLOAT)
 
     def quantize(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """(n, 3) uint32: the words of boxes (n, 3) as `coords` reads them, their grid corners a step beyond
@@ -78,7 +78,7 @@ class BoxGrid:
 
                 def outside(k):    # decode(k) not beyond the corner
                     y = _Float64(k) * step + origin
-                    y = _Float64(_Float32(y)) if _FLOAT is np.float32 else y
+                    y = _Float64(_Float32(y)) if HOST_FLOAT is np.float32 else y
                     return y > corner if beyond < 0 else y < corner
 
                 k = _UInt32(dr.clip(outwards((corner - origin) / step) + beyond, 0, GRID))
@@ -158,7 +158,7 @@ def layout(tri_vertices: np.ndarray) -> Layout:
 def triangle_frames(v0: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
     """(n, 3, 3) rows v0, e1 = v1 - v0, e2 = v2 - v0 of triangles in Float's type, from their (3, n) float64
     coordinate rows (so each difference is rounded once)."""
-    out = np.empty((v0.shape[1], 3, 3), _FLOAT)
+    out = np.empty((v0.shape[1], 3, 3), HOST_FLOAT)
     for row, a in zip(out.transpose(1, 2, 0), (v0, e1, e2)):   # written in place, not stacked then converted
         row[...] = a
     return out
@@ -181,9 +181,9 @@ class BVHKernel:
         # the root row's link: its full slots are those with a link
         self.root = int((tables.nodes[0, 3::4] != 0) @ (1 << np.arange(WIDTH)))
         self.stack_size = tables.stack_size
-        tris = aligned_zeros((len(frames), 12), _FLOAT)   # rows (v0, prim, v1 - v0, 0, v2 - v0, 0)
+        tris = aligned_zeros((len(frames), 12), HOST_FLOAT)   # rows (v0, prim, v1 - v0, 0, v2 - v0, 0)
         tris.reshape(-1, 3, 4)[:, :, :3] = np.take(frames, tables.order, axis=0)
-        tris[:, 3] = (tables.order + prim_base).astype(_UINT).view(_FLOAT)
+        tris[:, 3] = (tables.order + prim_base).astype(_UINT).view(HOST_FLOAT)
         self.tris = Float(tris.ravel())
 
     def _child(self, x: ArrayXu, k: int, slope: Array3f, offset: Array3f,
