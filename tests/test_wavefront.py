@@ -144,7 +144,7 @@ def test_a_batch_of_one_ray_is_its_walk(kernel_and_rays):
             == kernel.occluded(one_o, one_d, Float(9.0), none, none).numpy()).all()
 
 
-def test_unbounded_paths_bounce_by_bounce_are_the_paths_in_one_kernel(tmp_path):
+def test_unbounded_paths_bounce_by_bounce_are_the_paths_in_one_kernel(tmp_path, monkeypatch, request):
     """max_depth -1: the last bounces hold a few paths, down to one."""
     import drjit as dr
 
@@ -153,18 +153,13 @@ def test_unbounded_paths_bounce_by_bounce_are_the_paths_in_one_kernel(tmp_path):
 
     scene = tracer.load_scene(write_mesh_scene(tmp_path, 3000), width=12, height=12)
     geo = SceneGeometry(scene)
-    assert geo.meshes.bvh is not None
+    assert geo.bounce_by_bounce == BATCHED_WALKS
     threads = dr.thread_count()
     dr.set_thread_count(1)        # the film adds samples atomically: in any order with two threads
-    try:
-        bounces = render(scene, "path", spp=4, seed=2, max_depth=-1, geometry=geo)
-        path_integrator.BATCHED_WALKS, saved = False, path_integrator.BATCHED_WALKS
-        try:
-            one_kernel = render(scene, "path", spp=4, seed=2, max_depth=-1, geometry=geo)
-        finally:
-            path_integrator.BATCHED_WALKS = saved
-    finally:
-        dr.set_thread_count(threads)
+    request.addfinalizer(lambda: dr.set_thread_count(threads))
+    bounces = render(scene, "path", spp=4, seed=2, max_depth=-1, geometry=geo)
+    monkeypatch.setattr(path_integrator, "_wavefront", path_integrator._megakernel)
+    one_kernel = render(scene, "path", spp=4, seed=2, max_depth=-1, geometry=geo)
     assert bounces.rays == one_kernel.rays
     np.testing.assert_array_equal(bounces.image, one_kernel.image)
 

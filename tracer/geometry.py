@@ -148,6 +148,11 @@ class SceneGeometry:
         return keep
 
     # ---- ray queries ------------------------------------------------------------------------------
+    @property
+    def bounce_by_bounce(self) -> bool:
+        """Whether the path tracer goes bounce by bounce, its BVH walks batched (integrators.path)."""
+        return self.meshes.bvh is not None and BATCHED_WALKS
+
     @contextmanager
     def batched(self):
         """Within: a ray query evaluates its rays and walks the BVH over them in a kernel of its own, by
@@ -277,7 +282,7 @@ class SceneGeometry:
         points = f", {len(self.points)} point light(s)" if self.points else ""
         points += f", {len(self.directionals)} directional light(s)" if self.directionals else ""
         lines.append(f"light sampling: {len(self.emitters)} area light(s){points}{env}")
-        if self.meshes.bvh is not None and BATCHED_WALKS:
+        if self.bounce_by_bounce:
             lines.append("path tracing: bounce by bounce, each bounce's rays walked through the BVH by persistent "
                          "lanes")
         return lines

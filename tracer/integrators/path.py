@@ -18,7 +18,6 @@ from ..materials.dielectric import dielectric_interface
 from ..materials.fresnel import fresnel_dielectric, reflect
 from ..jit import INF, NO_PRIM, PCG32, Array3f, Bool, Float, UInt32
 from ..sampling import square_to_cosine_hemisphere, to_world
-from ..shapes.bvh import BATCHED_WALKS
 from .direct import facing_normal, power_heuristic, sample_direct
 
 Q_MAX = 0.9995  # largest Russian-roulette survival probability
@@ -45,10 +44,10 @@ class PathState:
 def path_radiance(geo: SceneGeometry, o: Array3f, d: Array3f, t_min: Float, t_max: Float, rng: PCG32,
                   max_depth: UInt32, rr_depth: UInt32) -> tuple[Array3f, UInt32]:
     """Radiance along each camera ray and the number of rays each path traced. With a BVH the paths go
-    bounce by bounce (_wavefront, where walks are batched: shapes.bvh.BATCHED_WALKS), else in one kernel
+    bounce by bounce (_wavefront, where SceneGeometry.bounce_by_bounce), else in one kernel
     (_megakernel); each lane's path is the same."""
     path = PathState(o, d, t_min, t_max, Bool(max_depth > 0))
-    trace = _wavefront if geo.meshes.bvh is not None and BATCHED_WALKS else _megakernel
+    trace = _wavefront if geo.bounce_by_bounce else _megakernel
     return trace(geo, rng, path, max_depth, rr_depth)
 
 
