@@ -126,10 +126,11 @@ def wide_children(tree: Tree, node: np.ndarray) -> np.ndarray:
     return out
 
 
-def layout(tri_vertices: np.ndarray) -> Layout:
-    """Builds the tree over (n, 3, 3) triangle vertices and encodes its 4-wide node table: the rows are
-    the tree's inner nodes at even depths (the root's, its grandchildren's...), in depth-first order."""
-    tree = build(tri_vertices)
+def layout(vertices: np.ndarray, faces: np.ndarray | None = None) -> Layout:
+    """Builds the tree over triangles (as bvh_build.build takes them) and encodes its 4-wide node table: the
+    rows are the tree's inner nodes at even depths (the root's, its grandchildren's...), in depth-first
+    order."""
+    tree = build(vertices, faces)
     grid = BoxGrid(tree.lo[0], tree.hi[0])
     boxes = grid.quantize(tree.lo, tree.hi)
     depth = np.zeros(len(tree.left), np.int64)
@@ -166,14 +167,14 @@ def triangle_frames(v0: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> np.ndarra
 
 class BVHKernel:
     """The BVH's inner nodes and triangles on the device, and their traversal; triangle ids are offset by
-    `prim_base`. `tables`: the triangles' Layout if already built (shapes.bvh_cache), else built here;
-    `frames`: their triangle_frames if already computed."""
+    `prim_base`. The triangles are given as bvh_build.build takes them; `tables`: their Layout if already
+    built (shapes.bvh_cache), else built here; `frames`: their triangle_frames if already computed."""
 
-    def __init__(self, tri_vertices: np.ndarray, prim_base: int, tables: Layout | None = None,
-                 frames: np.ndarray | None = None):
-        tables = layout(tri_vertices) if tables is None else tables
+    def __init__(self, vertices: np.ndarray, prim_base: int, tables: Layout | None = None,
+                 frames: np.ndarray | None = None, faces: np.ndarray | None = None):
+        tables = layout(vertices, faces) if tables is None else tables
         if frames is None:
-            v = tri_vertices.transpose(1, 2, 0)
+            v = (vertices if faces is None else vertices[faces]).transpose(1, 2, 0)
             frames = triangle_frames(v[0], v[1] - v[0], v[2] - v[0])
         self.grid = BoxGrid(*tables.root)
         self.rows = tables.rows

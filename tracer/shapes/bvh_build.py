@@ -60,8 +60,9 @@ class Tree:
         return size
 
 
-def build(tri_vertices: np.ndarray) -> Tree:
-    """SAH BVH over triangles given as (n, 3, 3) vertices.
+def build(vertices: np.ndarray, faces: np.ndarray | None = None) -> Tree:
+    """SAH BVH over the triangles `faces` (n, 3) of `vertices` (m, 3), or, without faces, over triangles
+    given as (n, 3, 3) vertices.
 
     Each node's triangles are split by a plane across the axis of their centroids' largest extent
     (centroids rounded to float32), where the surface area heuristic's cost is least (_sah); a node becomes
@@ -72,8 +73,9 @@ def build(tri_vertices: np.ndarray) -> Tree:
     kept there, and only the levels' nodes come back to NumPy: a level is then a few fused passes over the
     lists instead of dozens of NumPy temporaries. Boxes are reduced over the leaves' triangles (a kernel),
     then merged bottom-up."""
-    n = len(tri_vertices)
-    lists, verts = _triangles(tri_vertices)
+    vertices, faces = corners(vertices, faces)
+    n = len(faces)
+    lists, verts = _triangles(vertices, faces)
     left, right, first, count = [], [], [], []
     begin, size, n_nodes, levels = np.array([0]), np.array([n]), 1, []
     while len(begin):
@@ -109,20 +111,40 @@ def build(tri_vertices: np.ndarray) -> Tree:
     return Tree(lo, hi, left, right, first, count, order, levels)
 
 
-def _triangles(tri_vertices: np.ndarray) -> tuple[_Lists, object]:
-    """The build's lists of the triangles, and their vertices (9n, as given) on the host backend. One
-    kernel finds each triangle's box and centroid (min/max as NumPy's: of equal values, the second) and
-    its sort keys; NumPy sorts the keys (one sort of 64-bit words per list: a centroid's bits mapped to an
-    order-preserving unsigned integer, above the tie)."""
+def corners(vertices: np.ndarray, faces: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (m, 3), faces (n, 3)) of triangles given as such, or, faces None, as (n, 3, 3) vertices."""
+    if faces is None:
+        return vertices.reshape(-1, 3), np.arange(vertices.shape[0] * 3).reshape(-1, 3)
+    return vertices, faces
+
+
+class _Corners:
+    """Triangles on the host backend: their vertices' coordinates (3m, in `real`'s precision, float64
+    unless given as float32) and faces (3n)."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+        v = vertices if vertices.dtype in (np.float32, np.float64) else vertices.astype(np.float64)
+        self.real = _Float32 if v.dtype == np.float32 else _Float64
+        self.coords, self.faces = host_array(self.real, v), host_array(_UInt32, faces.astype(np.uint32))
+
+    def coordinate(self, t: _UInt32, a: int, active=True) -> list:
+        """Coordinate a of the three corners of triangles t."""
+        return [dr.gather(self.real, self.coords, 3 * dr.gather(_UInt32, self.faces, 3 * t + j, active) + a, active)
+                for j in range(3)]
+
+
+def _triangles(vertices: np.ndarray, faces: np.ndarray) -> tuple[_Lists, _Corners]:
+    """The build's lists of the triangles, and the triangles on the host backend. One kernel finds each
+    triangle's box and centroid (min/max as NumPy's: of equal values, the second) and its sort keys; NumPy
+    sorts the keys (one sort of 64-bit words per list: a centroid's bits mapped to an order-preserving
+    unsigned integer, above the tie)."""
     if not dr.has_backend(dr.JitBackend.LLVM):
         raise BackendError(f"the BVH build runs on Dr.Jit's LLVM backend, which is unavailable: {LLVM_FIX}")
-    v = tri_vertices if tri_vertices.dtype in (np.float32, np.float64) else tri_vertices.astype(np.float64)
-    n, real = len(v), _Float32 if v.dtype == np.float32 else _Float64
-    verts = host_array(real, v)
+    verts, n = _Corners(vertices, faces), len(faces)
     t, stride = dr.arange(_UInt32, n), dr.opaque(_UInt32, n)
     centroid, boxes, bits = dr.empty(_Float32, 3 * n), dr.empty(_Float32, 6 * n), dr.empty(_UInt32, 3 * n)
     for a in range(3):
-        x = [dr.gather(real, verts, 9 * t + 3 * j + a) for j in range(3)]
+        x = verts.coordinate(t, a)
         lo, hi = select_min(select_min(x[0], x[1]), x[2]), select_max(select_max(x[0], x[1]), x[2])
         c = _Float32((lo + hi) / 2)
         key = dr.reinterpret_array(_UInt32, dr.select(c == 0, 0, c))     # -0.0 as 0.0
@@ -151,17 +173,17 @@ def _triangles(tri_vertices: np.ndarray) -> tuple[_Lists, object]:
     return _Lists(n, host_array(_UInt32, np.concatenate(ids)), centroid, boxes), verts
 
 
-def _leaf_boxes(verts, ids: _UInt32, first: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _leaf_boxes(verts: _Corners, ids: _UInt32, first: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(lo, hi), each (leaves, 3), of the leaves' triangles' boxes: those of slots [first, first + count)
     of the first list (count <= LEAF_SIZE)."""
-    real, inf, m = type(verts), float("inf"), len(first)
+    real, inf, m = verts.real, float("inf"), len(first)
     first, count = _opaque(first), _opaque(count)
     lo, hi = [dr.full(real, inf, m) for _ in range(3)], [dr.full(real, -inf, m) for _ in range(3)]
     for i in range(LEAF_SIZE):
         ok = i < count
         t = dr.gather(_UInt32, ids, first + i, ok)
         for a in range(3):
-            x = [dr.gather(real, verts, 9 * t + 3 * j + a, ok) for j in range(3)]
+            x = verts.coordinate(t, a, ok)
             lo[a] = dr.select(ok, select_min(lo[a], select_min(select_min(x[0], x[1]), x[2])), lo[a])
             hi[a] = dr.select(ok, select_max(hi[a], select_max(select_max(x[0], x[1]), x[2])), hi[a])
     dr.eval(lo, hi)

@@ -51,22 +51,23 @@ def disk_folder() -> Path | None:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "tracer" / "bvh"
 
 
-def cached_layout(tri_vertices: np.ndarray, folder: Path | str | None = None,
-                  source: Sequence[np.ndarray] = ()) -> Layout:
-    """The BVH Layout of these triangles: from this process's cache, else from `folder` (default:
-    disk_folder(), for meshes of DISK_MIN_TRIANGLES or more), else built (and then stored in both).
-    `source`: arrays that determine the triangles (meshes' vertices and faces: half their bytes), keyed
-    instead of them."""
-    k = key(*source) if source else key(tri_vertices)
+def cached_layout(vertices: np.ndarray, folder: Path | str | None = None, source: Sequence[np.ndarray] = (),
+                  faces: np.ndarray | None = None) -> Layout:
+    """The BVH Layout of these triangles (as bvh_build.build takes them): from this process's cache, else
+    from `folder` (default: disk_folder(), for meshes of DISK_MIN_TRIANGLES or more), else built (and then
+    stored in both). `source`: arrays that determine the triangles (meshes' vertices and faces: half their
+    bytes), keyed instead of them."""
+    k = key(*source) if source else key(vertices) if faces is None else key(vertices, faces)
     if k in _memory:
         _memory.move_to_end(k)
         return _memory[k]
-    if folder is None and len(tri_vertices) >= DISK_MIN_TRIANGLES:
+    triangles = len(vertices if faces is None else faces)
+    if folder is None and triangles >= DISK_MIN_TRIANGLES:
         folder = disk_folder()
     path = Path(folder) / f"{k}.npz" if folder is not None else None
-    tables = _load(path, k, len(tri_vertices)) if path is not None else None
+    tables = _load(path, k, triangles) if path is not None else None
     if tables is None:
-        tables = layout(tri_vertices)
+        tables = layout(vertices, faces)
         if path is not None:
             _save(path, k, tables)
             _evict(path.parent, CAPACITY)

@@ -106,17 +106,21 @@ class MeshSet(ShapeSet):
         self._vertices = np.concatenate([m.vertices for m in meshes]) if meshes else np.zeros((0, 3))
         self._faces = np.concatenate([m.faces + k for m, k in zip(meshes, first)]) if meshes \
             else np.zeros((0, 3), np.int64)
-        self.tri_vertices = np.take(self._vertices, self._faces, axis=0)
         self.smooth = any(m.normals is not None for m in meshes)
         source = [a for m in meshes for a in (m.vertices, m.faces)]   # what the triangles are made of
-        self.bvh = BVHKernel(self.tri_vertices, base, cached_layout(self.tri_vertices, source=source),
+        self.bvh = BVHKernel(self._vertices, base, cached_layout(self._vertices, source=source, faces=self._faces),
                              self.frames()) if self.count > bvh_threshold else None
         self.corner_normals = Float(self._corner_normals().ravel())
         self.corner_uvs = None
 
     @property
     def count(self) -> int:
-        return len(self.tri_vertices)
+        return len(self._faces)
+
+    @cached_property
+    def tri_vertices(self) -> np.ndarray:
+        """(triangles, 3, 3) each triangle's corners."""
+        return np.take(self._vertices, self._faces, axis=0)
 
     def shape_primitives(self):
         lo = self.base
