@@ -2,6 +2,7 @@
 (tracer.shapes.bvh); interpolated shading normals and texture coordinates; area sampling."""
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING
@@ -108,10 +109,17 @@ class MeshSet(ShapeSet):
             else np.zeros((0, 3), np.int64)
         self.smooth = any(m.normals is not None for m in meshes)
         source = [a for m in meshes for a in (m.vertices, m.faces)]   # what the triangles are made of
-        self.bvh = BVHKernel(self._vertices, base, cached_layout(self._vertices, source=source, faces=self._faces),
-                             self.frames()) if self.count > bvh_threshold else None
+        self.bvh = self._bvh(source) if self.count > bvh_threshold else None
         self.corner_normals = Float(self._corner_normals().ravel())
         self.corner_uvs = None
+
+    def _bvh(self, source: list[np.ndarray]) -> BVHKernel:
+        """The BVH over the triangles; their frames are computed (NumPy, mostly without the GIL) on a second
+        thread while the build runs, whose kernels leave a core idle between them."""
+        with ThreadPoolExecutor(1) as pool:
+            frames = pool.submit(self.frames)
+            tables = cached_layout(self._vertices, source=source, faces=self._faces)
+            return BVHKernel(self._vertices, self.base, tables, frames.result())
 
     @property
     def count(self) -> int:
