@@ -207,7 +207,7 @@ class _Lists:
 
 def _sah(lists: _Lists, b: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The binned surface area heuristic's split of each node [b, b + s) of sorted slots (s >= 2), all at
-    once, a kernel lane per node: (axis, left triangles, cost). The axis is that of the centroids' largest
+    once: (axis, left triangles, cost). The axis is that of the centroids' largest
     extent; the node's list sorted along it is cut into min(s, BINS) bins of equal counts, and a split lies
     between two bins. Its cost, in steps of the walk (an inner node or a triangle test each), is
     1 + (A_l n_l + A_r n_r) / A: the node's own step, then each child's triangles weighted by the chance
@@ -215,9 +215,15 @@ def _sah(lists: _Lists, b: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.nd
     SAMPLES / BINS triangles evenly spread over it (all of them in a node of up to SAMPLES). Near-equal costs
     go to the more even split (so that equal triangles do not make a chain). Boxes are float32 (their
     maxima exact), areas and costs float64, each operation rounded as written (the LLVM backend fuses no
-    multiply-add unasked): the splits are those of the NumPy build this replaced."""
-    n, inf = lists.stride, float("inf")
-    b, s = _opaque(b), _opaque(s)
+    multiply-add unasked): the splits are those of the NumPy build this replaced.
+    A kernel lane per bin gathers each bin's box once; then a lane per node merges its bins' boxes, from
+    the last bin to the second (the areas of the boxes of bins k and after), then from the first (the
+    prefix boxes and the costs). Merged bin by bin, a box is the same as merged sample by sample in that
+    order, bit for bit (select_max keeps the last of equal values either way)."""
+    n, inf, width = lists.stride, float("inf"), len(b)
+    n_bins = np.minimum(s, BINS)
+    total = int(n_bins.sum())     # the level's bins
+    b, s, first_bin = _opaque(b), _opaque(s), _opaque(np.cumsum(n_bins) - n_bins)
 
     def centroid(a, slot):   # along axis a, of the triangle in a slot of the list along a
         return dr.gather(_Float32, lists.centroid, dr.gather(_UInt32, lists.ids, a * n + slot) + a * n)
@@ -227,46 +233,56 @@ def _sah(lists: _Lists, b: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.nd
     for a in (1, 2):   # the first of equal extents, as np.argmax
         longer = extent[a] > longest
         axis, longest = dr.select(longer, a, axis), dr.select(longer, extent[a], longest)
-    q, bins, base = dr.minimum(s, SAMPLES), dr.minimum(s, BINS), axis * n + b
-    few = s < BINS      # one triangle per bin
-    sampled = s > SAMPLES
+    node_start = dr.zeros(_UInt32, total)      # 1 at each node's first bin but the first node's
+    dr.scatter(node_start, 1, first_bin, dr.arange(_UInt32, width) > 0)
+    dr.eval(axis, node_start)
 
-    def bin_start(j):    # a bin's first sample
-        return dr.select(few, j, q * j // BINS)
+    def empty(lanes):   # the empty box: 6 values (-lo, hi)
+        return [dr.full(_Float32, -inf, lanes) for _ in range(6)]
+
+    # a lane per bin: bin k of node j
+    j = dr.prefix_reduce(dr.ReduceOp.Add, node_start, exclusive=False)
+    k = dr.arange(_UInt32, total) - dr.gather(_UInt32, first_bin, j)
+    s_j = dr.gather(_UInt32, s, j)
+    q, few, sampled = dr.minimum(s_j, SAMPLES), s_j < BINS, s_j > SAMPLES    # few: one triangle per bin
+    base = dr.gather(_UInt32, axis, j) * n + dr.gather(_UInt32, b, j)
+
+    def bin_start(k):    # a bin's first sample
+        return dr.select(few, k, q * k // BINS)
 
     def add_sample(i, *merged):   # the box of sample i (slot i * s / q of the node) merged in
-        slot = dr.select(sampled, _UInt32(_UInt64(i) * _UInt64(s) // SAMPLES), i)
+        slot = dr.select(sampled, _UInt32(_UInt64(i) * _UInt64(s_j) // SAMPLES), i)
         t = dr.gather(_UInt32, lists.ids, base + slot)
         return (i + 1, *(select_max(merged[c], dr.gather(_Float32, lists.boxes, c * n + t)) for c in range(6)))
 
-    empty = [dr.full(_Float32, -inf, dr.width(b)) for _ in range(6)]
+    end = bin_start(k + 1)
+    bin_box = dr.while_loop((bin_start(k), *empty(total)), lambda i, *_: i < end, add_sample)[1:]
+    dr.eval(bin_box)
 
-    def with_bin(k, merged):   # merged with the box of bin k: 6 values (-lo, hi)
-        end = bin_start(k + 1)
-        return dr.while_loop((bin_start(k), *merged), lambda i, *_: i < end, add_sample)[1:]
+    # a lane per node, loops over its bins (as many as it has)
+    bins, few, s_float = dr.minimum(s, BINS), s < BINS, _Float64(s)
+    suffix_area = dr.empty(_Float64, total)
 
-    # loops over a node's bins (as many as it has): the areas of the boxes of bins k and after, then
-    # the prefix boxes and the costs
-    node, s_float = dr.arange(_UInt32, dr.width(b)), _Float64(s)
-    suffix_area = dr.empty(_Float64, BINS * dr.width(b))
+    def with_bin(k, merged):   # merged with the box of bin k
+        return [select_max(merged[c], dr.gather(_Float32, bin_box[c], first_bin + k)) for c in range(6)]
 
     def suffix(k, *merged):
         merged = with_bin(k, merged)
-        dr.scatter(suffix_area, _box_area(merged), node * BINS + k)
+        dr.scatter(suffix_area, _box_area(merged), first_bin + k)
         return (k - 1, *merged)
 
-    dr.while_loop((bins - 1, *empty), lambda k, *_: k > 0, suffix)
+    dr.while_loop((bins - 1, *empty(width)), lambda k, *_: k > 0, suffix)
 
     def split(k, best, half, *merged):   # between bins k - 1 and k: the first least cost, as np.argmin
         n_left = dr.select(few, k, _UInt32(_UInt64(s) * _UInt64(k) // BINS))
         c = _Float64(n_left) * _box_area(merged) + \
-            _Float64(s - n_left) * dr.gather(_Float64, suffix_area, node * BINS + k)
+            _Float64(s - n_left) * dr.gather(_Float64, suffix_area, first_bin + k)
         c *= 1 + 1e-6 * _Float64(dr.select(2 * n_left > s, 2 * n_left - s, s - 2 * n_left)) / s_float
         better = (k == 1) | (c < best)
         return (k + 1, dr.select(better, c, best), dr.select(better, n_left, half), *with_bin(k, merged))
 
-    state = (_UInt32(1), dr.full(_Float64, inf, dr.width(b)), dr.zeros(_UInt32, dr.width(b)),
-             *with_bin(_UInt32(0), empty))
+    state = (_UInt32(1), dr.full(_Float64, inf, width), dr.zeros(_UInt32, width),
+             *with_bin(_UInt32(0), empty(width)))
     _, best, half, *merged = dr.while_loop(state, lambda k, *_: k < bins, split)
     whole = _box_area(merged)
     cost = dr.select(whole > 0, 1 + best / whole, inf)
