@@ -165,6 +165,14 @@ class SceneGeometry:
         finally:
             self.batch = False
 
+    def keep(self, *values) -> None:
+        """Within batched(): `values`, which code after the next ray query reads, are computed by the
+        kernel that evaluates that query's rays and kept in memory (dr.schedule); the kernels after the
+        query would else compute them again from their inputs (a surface's gathers, a light sample). In
+        one kernel (outside batched()) nothing is computed twice: nothing to do."""
+        if self.batch:
+            dr.schedule(*values)
+
     def _candidates(self, o, d, t_min, skip, target=None, only=None):
         for shapes in self.shape_sets:
             yield from shapes.candidates(o, d, t_min, skip, target, only)

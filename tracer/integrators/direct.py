@@ -53,6 +53,7 @@ def sample_direct(geo: SceneGeometry, surf: Surface, ns: Array3f, albedo: Array3
     if geo.points:           # a point light: intensity / d^2, no surface to be seen at an angle
         cos_y = dr.select(ls.prim == POINT_LIGHT, 1.0, cos_y)
     lit = active & (cos_x > 0) & (cos_y > 0) & (dist2 > 0)
+    geo.keep(surf, ns, albedo, ls, w, dist2, cos_x, cos_y, lit)
     occluded = geo.occluded(surf.p, w, dist, surf.prim, ls.prim, lit)   # traced only where it counts
     geometry_term = cos_x * cos_y / dist2
     if geo.spots:            # a spot light's falloff in the direction of the shaded point (1 off spot lights)

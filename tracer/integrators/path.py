@@ -123,6 +123,7 @@ def _vertex(geo, rng, path: PathState, max_depth) -> Bool:
         ns, lit = facing_normal(geo, surf, wi)
         albedo = geo.materials.albedo_at(surf, is_diffuse)
         is_diffuse &= lit
+        geo.keep(L, kind, is_diffuse, active_next, rng)
         if geo.has_lights:
             ds = sample_direct(geo, surf, ns, albedo, rng.next_float32(), rng.next_float32(), rng.next_float32(),
                                is_diffuse)

@@ -199,13 +199,20 @@ class BVHKernel:
         return (t_near <= t_far) & (t_far >= 0) & (t_near <= t_max), t_near, x[4 * k + 3]
 
     def _step(self, item: UInt32, stack: tuple, payload: tuple, slope: Array3f, offset: Array3f,
-              t_end, visit_triangle) -> tuple[UInt32, tuple, tuple]:
-        """One step of the walk (see _walk) for every lane: the next item, the stack and the payload."""
+              t_end, visit_triangle, finished) -> tuple[UInt32, tuple, tuple, Bool, Bool]:
+        """One step of the walk (see _walk) for every lane: a lane at a leaf tests its triangle and goes on
+        to the leaf's next one or pops; a lane then at a row (just popped to, or there from the last step)
+        tests the row's boxes and goes on. The next item, the stack, the payload, and which lanes tested a
+        triangle and which a row. The popped row's address is known before the triangle test's end, so a
+        lane loads both at once."""
         none = UInt32(0xFFFFFFFF)
         at_leaf = (item >= LEAF_BIT) & (item != none)   # else a row, or nothing left (a lane in the loop's tail)
-        inner = ~at_leaf & (item != none)
         payload = dr.if_stmt((item, *payload), at_leaf,
                              lambda i, *p: visit_triangle((i & (LEAF_BIT - 1)) >> 3, *p), lambda i, *p: p)
+        more = at_leaf & ((item & 7) > 1)   # the leaf's next triangle: first + 1, count - 1
+        item, stack = self._pop(at_leaf & ~more, item, stack)
+        item = dr.select(more, item + 7, item)
+        inner = (item < LEAF_BIT) & ~finished(*payload)
         x = dr.gather(ArrayXu, self.nodes, item >> WIDTH, inner, shape=(4 * WIDTH, dr.width(item)))
         t_end = t_end(*payload)
         t_best, near, other, near_bit, hits = Float(INF), UInt32(0), UInt32(0), UInt32(0), UInt32(0)
@@ -218,14 +225,20 @@ class BVHKernel:
             t_best, near, near_bit = (dr.select(closer, t, t_best), dr.select(closer, link, near),
                                       dr.select(closer, 1 << k, near_bit))
         rest_bits = hits & ~near_bit
-        more = at_leaf & ((item & 7) > 1)   # the leaf's next triangle: first + 1, count - 1
-        push, pop = rest_bits != 0, ~((hits != 0) | more)
+        push = rest_bits != 0
         one = (rest_bits & (rest_bits - 1)) == 0   # one other slot entered: pushed itself, else the row
         pushed = (dr.select(one, other, (item & (0xFFFFFFFF ^ MASK)) | rest_bits), *stack[:-1])
-        popped = (*stack[1:], none)
-        item = dr.select(pop, stack[0], dr.select(more, item + 7, near))
-        stack = tuple(dr.select(push, p, dr.select(pop, q, s)) for p, q, s in zip(pushed, popped, stack))
-        return item, stack, payload
+        entered = hits != 0
+        item, stack = self._pop(inner & ~entered, item, stack)
+        item = dr.select(entered, near, item)
+        stack = tuple(dr.select(push, p, s) for p, s in zip(pushed, stack))
+        return item, stack, payload, at_leaf, inner
+
+    @staticmethod
+    def _pop(pop: Bool, item: UInt32, stack: tuple) -> tuple[UInt32, tuple]:
+        """(item, stack) with the top of the stack popped into item where `pop`."""
+        popped = (*stack[1:], UInt32(0xFFFFFFFF))
+        return dr.select(pop, stack[0], item), tuple(dr.select(pop, q, s) for q, s in zip(popped, stack))
 
     def _walk(self, ray: tuple, active: Bool, t_max, visit_triangle, finished, payload: tuple,
               count_work: bool = False) -> tuple:
@@ -249,9 +262,9 @@ class BVHKernel:
 
         def body(item, *rest):
             payload, stack = rest[c:c + n], rest[c + n:]
-            at_leaf = item >= LEAF_BIT
-            counted = (rest[0] + dr.select(~at_leaf, 1, 0), rest[1] + dr.select(at_leaf, 1, 0)) if c else ()
-            item, stack, payload = self._step(item, stack, payload, slope, offset, t_end, visit)
+            item, stack, payload, tested, row = self._step(item, stack, payload, slope, offset, t_end, visit,
+                                                           finished)
+            counted = (rest[0] + dr.select(row, 1, 0), rest[1] + dr.select(tested, 1, 0)) if c else ()
             return (item, *counted, *payload, *stack)
 
         start = dr.select(active, UInt32(self.root), none)
@@ -295,8 +308,9 @@ class BVHKernel:
         def body(step, r, item, *rest):
             values, (slope, offset) = rest[:k], rest[k:k + 2]
             payload, stack = rest[k + 2:k + 2 + m], rest[k + 2 + m:]
-            item, stack, payload = self._step(item, stack, payload, slope, offset, lambda *p: t_max(values, *p),
-                                              lambda slot, *p: visit_triangle(slot, values, *p))
+            item, stack, payload, _, _ = self._step(item, stack, payload, slope, offset,
+                                                    lambda *p: t_max(values, *p),
+                                                    lambda slot, *p: visit_triangle(slot, values, *p), finished)
             step += 1
             take = ((item == none) | finished(*payload)) & ((step % REFILL_PERIOD) == 0)
 
