@@ -72,7 +72,9 @@ def test_a_renders_time_is_split_into_its_walks_and_the_rest(tmp_path):
 
     scene = tracer.load_scene(benchmark._sphere_scene(tmp_path, 500), width=32, height=32)
     geo = SceneGeometry(scene)
-    p = mesh_profile.profile_render(lambda: render(scene, "path", spp=4, max_depth=4, geometry=geo).render_seconds)
+    once = lambda: render(scene, "path", spp=4, max_depth=4, geometry=geo).render_seconds   # noqa: E731
+    once()   # as the bench: kernels compiled first (render_seconds leaves compilation out, a timed walk not)
+    p = mesh_profile.profile_render(once)
     if not bvh.BATCHED_WALKS:     # the walks run inside the render's kernels: nothing to time apart
         assert p["closest_walk_seconds"] == p["shadow_walk_seconds"] == 0
         return
