@@ -81,3 +81,16 @@ def test_a_renders_time_is_split_into_its_walks_and_the_rest(tmp_path):
     assert p["closest_walk_seconds"] > 0 and p["shadow_walk_seconds"] > 0
     assert 0 < p["rest_seconds"] < p["timed_render_seconds"]
     assert bvh._walk_seconds is None            # timing is off again after the render
+
+
+def test_setup_from_the_disk_cache_is_timed_apart(tmp_path, monkeypatch):
+    from tracer.shapes import bvh_cache
+
+    monkeypatch.setenv(bvh_cache.ENV, "off")
+    monkeypatch.setattr(bvh_cache, "DISK_MIN_TRIANGLES", 0)   # the small scene's BVH goes to disk too
+    job = {"scene": str(benchmark._sphere_scene(tmp_path, 500)), "params": {}}
+    loaded = []
+    monkeypatch.setattr(bvh_cache, "_load", lambda *a, real=bvh_cache._load: loaded.append(real(*a)) or loaded[-1])
+    assert benchmark._setup_from_disk_cache(job) > 0
+    assert len(loaded) == 2 and loaded[0] is None and loaded[1] is not None   # the second read the first's file
+    assert bvh_cache.disk_folder() is None              # the variable as it was

@@ -1,9 +1,9 @@
 """Where a mesh scene's ray time goes, for `validate bench`: the tracer's closest-hit and shadow-ray queries
 alone (no shading) on the same random rays as Mitsuba's (Embree's) `ray_intersect_preliminary` and
 `ray_test`, and the tracer's BVH work per ray (4-wide node rows visited, triangles tested; a counting copy of the
-traversal, tracer.shapes.bvh.BVHKernel.closest_hit_work), and from it the share of a packet's lane-steps
-that do work when each lane walks its own ray to its end (the in-kernel walk: a packet takes as many steps
-as its longest walk), which the batched walk (BVHKernel._walk_batch) recovers.
+traversal, tracer.shapes.bvh.BVHKernel.closest_hit_work), and from it a packet's work per lane against its
+busiest lane's when each lane walks its own ray to its end (the in-kernel walk: a packet keeps walking until
+its longest walk ends), which the batched walk (BVHKernel._walk_batch) recovers.
 
 The rays start uniformly inside the scene's bounding box, in uniformly random directions; shadow rays are
 the same rays cut to a length uniform in (0, half the box's diagonal). Each query is launched LAUNCHES
