@@ -37,7 +37,7 @@ MAX_LANES = 1 << 32         # lanes of one Dr.Jit array (32-bit indices)
 IMAGE_BYTES = 12            # per pixel of a developed image: float32 RGB
 DEVELOP_MULTIPLE = 3.0      # film (16 bytes per pixel) and its developing, in developed images (12 bytes)
 PATH_LANE_BYTES = 64        # per path-tracer lane of a launch in one kernel (measured about 10)
-WAVEFRONT_LANE_BYTES = 448  # per path-tracer lane of a launch bounce by bounce (measured about 350)
+WAVEFRONT_LANE_BYTES = 512  # per path-tracer lane of a launch bounce by bounce (measured about 420)
 WAVE_LANE_BYTES = 192       # per ray of a report-estimator level: ray, weight, hit surface (measured about 150)
 SPAWN_LANE_BYTES = 16       # per candidate child of a level (index, slot, validity, compressed index)
 
