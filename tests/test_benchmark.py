@@ -94,3 +94,10 @@ def test_setup_from_the_disk_cache_is_timed_apart(tmp_path, monkeypatch):
     assert benchmark._setup_from_disk_cache(job) > 0
     assert len(loaded) == 2 and loaded[0] is None and loaded[1] is not None   # the second read the first's file
     assert bvh_cache.disk_folder() is None              # the variable as it was
+
+
+def test_mesh_rows_pool_two_processes_renders():
+    first = {"seconds": [3.0, 3.2, 3.1], "median": 3.1, "setup_seconds": 1.0, "profile": {}}
+    benchmark._pool(first, {"seconds": [2.0, 2.1, 2.2], "median": 2.1, "setup_seconds": 2.0})
+    assert first["seconds"] == [3.0, 3.2, 3.1, 2.0, 2.1, 2.2] and first["median"] == 2.6
+    assert first["setup_seconds"] == 1.5 and first["setup_runs"] == [1.0, 2.0] and "profile" in first
