@@ -3,10 +3,13 @@ tracer.shapes.bvh_build, collapsed into 4-wide rows.
 
 The kernel walks a 4-wide tree (as Embree's and pbrt's wide BVHs, collapsed from the binary one): a row
 holds the boxes of an inner node's grandchildren, or of a child that is a leaf, so its children are 2 to
-4 and the tree half as deep. It walks it depth first, nearest child first: each step a lane either tests
-the boxes of a row's child slots still to visit or one triangle of a leaf (the triangle test in a branch
-that a packet of lanes skips when none of them is at a leaf; testing a node's child leaves whole within
-its step cost a packet every triangle test of any lane's leaves in most steps). From a row it goes on to
+4 and the tree half as deep. It walks it depth first, nearest child first: each step a lane at a leaf
+tests one of its triangles (in a branch that a packet of lanes skips when none of them is at a leaf;
+testing a node's child leaves whole within its step cost a packet every triangle test of any lane's
+leaves in most steps), and a lane then at a row, there from the last step or popped to after its leaf,
+tests the boxes of the row's child slots still to visit (a while-while walk, after Aila and Laine,
+"Understanding the efficiency of ray traversal on GPUs", 2009: the popped row's load is in flight during
+the triangle test, and a ray takes about as many steps as rows it visits). From a row it goes on to
 the nearest child whose box it enters; if it entered one other, it pushes that child, and if several, it
 pushes the row back with those slots left in its link's mask, to be tested again, against the then
 closest hit, when popped. So each row has at most one entry on the per-lane stack: its size is the wide
@@ -244,13 +247,14 @@ class BVHKernel:
               count_work: bool = False) -> tuple:
         """Depth-first traversal, nearest child first, of the boxes that o + t d, 0 <= t <= t_max(ray,
         *payload), enters, ray = (o, d, ...): payload = visit_triangle(triangle slot, ray, *payload) for each
-        triangle of each such leaf; a lane stops at the end or once finished(*payload). Each step a lane
-        either tests the boxes of a row's child slots still to visit (its item's mask) or one triangle of a
-        leaf. From a row it goes to the nearest child it enters; it pushes the other one it enters, or, if
+        triangle of each such leaf; a lane stops at the end or once finished(*payload). Each step a lane at a
+        leaf tests one of its triangles, and a lane then at a row tests the boxes of the row's child slots
+        still to visit (its item's mask) (_step). From a row it goes to the nearest child it enters; it
+        pushes the other one it enters, or, if
         several, the row back with those slots (tested again, against the then closest hit, when popped).
         Each lane walks its own ray, in one loop that a packet of lanes leaves when its last lane is done.
-        With count_work (diagnostics only), the payload is followed by the number of row steps each lane
-        took and of triangles it tested."""
+        With count_work (diagnostics only), the payload is followed by the number of rows each lane
+        tested (a row popped back counts again) and of triangles it tested."""
         (slope, offset), none, n = self.grid.ray_terms(ray[0], ray[1]), UInt32(0xFFFFFFFF), len(payload)
         counter = (UInt32(0), UInt32(0)) if count_work else ()
         c = len(counter)
@@ -379,7 +383,7 @@ class BVHKernel:
                     visit_triangle, lambda blocked: blocked, (Bool(False),))[0]
 
     def closest_hit_work(self, o: Array3f, d: Array3f) -> tuple[UInt32, UInt32]:
-        """Diagnostics: the row steps (a row popped back counts again) and the triangles tested by each ray's
+        """Diagnostics: the rows tested (a row popped back counts again) and the triangles tested by each ray's
         closest-hit traversal (the same walk as closest_hit, counting)."""
         def visit_triangle(slot, ray, t_best):
             return (dr.minimum(self._triangle(slot, ray[0], ray[1], 0.0, t_best, UInt32(0xFFFFFFFF), None)[0],
