@@ -91,6 +91,10 @@ def test_the_plan_counts_a_wavefronts_memory(tmp_path):
     assert make_plan(room, 16, estimator, 0).launch_bytes == 64 * 64 * 16 * PATH_LANE_BYTES
     lane_bytes = WAVEFRONT_LANE_BYTES if BATCHED_WALKS else PATH_LANE_BYTES
     assert make_plan(meshes, 16, estimator, 0).launch_bytes == 64 * 64 * 16 * lane_bytes
+    # a geometry built with another threshold: the plan follows what it holds
+    brute = SceneGeometry(meshes, bvh_threshold=meshes.triangle_count)
+    assert make_plan(meshes, 16, estimator, 0, geometry=brute).launch_bytes == 64 * 64 * 16 * PATH_LANE_BYTES
+    assert make_plan(meshes, 16, estimator, 0, geometry=SceneGeometry(meshes)).launch_bytes == 64 * 64 * 16 * lane_bytes
 
 
 def test_the_branching_estimators_levels_walk_the_bvh_batched(monkeypatch, request):

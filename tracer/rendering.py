@@ -87,9 +87,9 @@ def render(scene: Scene | str | Path, estimator: str = "path", spp: int | None =
         raise SettingsError(f"time_limit must be a positive number of seconds, got {time_limit!r}")
     cam = scene.camera
     film = Film(cam.width, cam.height, rfilter)
-    plan = make_plan(scene, spp, estimator, film.border, one_spp_passes=time_limit is not None)
     if geometry is not None and geometry.scene is not scene:
         raise SettingsError("geometry must be a SceneGeometry of the scene rendered")
+    plan = make_plan(scene, spp, estimator, film.border, one_spp_passes=time_limit is not None, geometry=geometry)
     geo = SceneGeometry(scene) if geometry is None else geometry
     rays = 0
 
@@ -131,12 +131,15 @@ def check_rfilter(rfilter) -> ReconstructionFilter:
 
 
 def make_plan(scene: Scene, spp: int, estimator: PathEstimator | BranchingEstimator, border: int,
-              one_spp_passes: bool = False, images: int = 2) -> Plan:
+              one_spp_passes: bool = False, images: int = 2, geometry: SceneGeometry | None = None) -> Plan:
     """tracer.plan's plan for the scene's camera, this backend's precision and the estimator's tree (or
-    its path tracer bounce by bounce, where the scene's meshes go into a BVH)."""
+    its path tracer bounce by bounce, where the scene's meshes go into a BVH: as `geometry` has them, or,
+    before it is built, as a SceneGeometry with the default bvh_threshold will)."""
     width, height = scene.camera.width, scene.camera.height
     if isinstance(estimator, BranchingEstimator):
         extra = {"slots": estimator.slots, "direct": estimator.direct}
+    elif geometry is not None:
+        extra = {"wavefront": geometry.bounce_by_bounce}
     else:
         extra = {"wavefront": scene.triangle_count > BVH_THRESHOLD and BATCHED_WALKS}
     return plan_render(width, height, spp, estimator.name, estimator.max_depth, border=border,
