@@ -250,8 +250,8 @@ class BVHKernel:
         triangle of each such leaf; a lane stops at the end or once finished(*payload). Each step a lane at a
         leaf tests one of its triangles, and a lane then at a row tests the boxes of the row's child slots
         still to visit (its item's mask) (_step). From a row it goes to the nearest child it enters; it
-        pushes the other one it enters, or, if
-        several, the row back with those slots (tested again, against the then closest hit, when popped).
+        pushes the other one it enters, or, if several, the row back with those slots (tested again, against
+        the then closest hit, when popped).
         Each lane walks its own ray, in one loop that a packet of lanes leaves when its last lane is done.
         With count_work (diagnostics only), the payload is followed by the number of rows each lane
         tested (a row popped back counts again) and of triangles it tested."""
