@@ -67,7 +67,7 @@ def test_node_table_reaches_every_triangle_once(n):
     """Walked on the host from the root row, the table's links reach each triangle exactly once, only
     through full slots, and no leaf lies below more rows than the kernel's stack holds."""
     tris = np.random.default_rng(n).uniform(-1, 1, (n, 3, 3))
-    kernel = BVHKernel(tris, prim_base=0)
+    kernel = BVHKernel.over(tris, prim_base=0)
     table = np.asarray(kernel.nodes).reshape(-1, 4 * WIDTH)
     assert kernel.rows[0] == 0   # the root comes first
     reached, pending, deepest = [], [(kernel.root, 1)], 0
@@ -111,7 +111,7 @@ def test_bvh_closest_hits_and_shadow_rays_on_a_large_mesh():
     o, d = _rays(6000, [0, 0, 0], 1.5, seed=5)
     axes = np.repeat(np.vstack([np.eye(3), -np.eye(3)]), 100, axis=0)   # 600 rays along the axes
     d = Array3f(*np.vstack([d.numpy().T[:-600], axes]).T)
-    kernel = BVHKernel(tris, prim_base=7)
+    kernel = BVHKernel.over(tris, prim_base=7)
     n = 6000
     t, prim, _, _ = kernel.closest_hit(o, d, 0.0, Float(np.full(n, np.inf)), UInt32(np.full(n, NO_PRIM, np.uint32)),
                                        Float(np.zeros(n)), Float(np.zeros(n)), UInt32(NO_PRIM))
@@ -137,7 +137,7 @@ def test_decoded_node_boxes_contain_their_triangles(offset, extent):
     spacings) wider; also for a mesh far from the origin, a thin one, and a flat one (extent 0 along z)."""
     rng = np.random.default_rng(7)
     tris = offset + rng.uniform(0, 1, (3000, 3, 3)) * [1.0, 1.0, extent]
-    kernel, tree = BVHKernel(tris, prim_base=0), build(tris)
+    kernel, tree = BVHKernel.over(tris, prim_base=0), build(tris)
     words = dr.gather(ArrayXu, kernel.nodes, dr.arange(UInt32, len(kernel.rows)),
                       shape=(4 * WIDTH, len(kernel.rows)))
     children = wide_children(tree, kernel.rows)
@@ -351,7 +351,7 @@ def test_closest_hit_work_counts_the_walk():
     least the triangle it hits; no ray visits more inner nodes than the table has."""
     rng = np.random.default_rng(14)
     tris = rng.uniform(-1, 1, (400, 1, 3)) + rng.uniform(-0.1, 0.1, (400, 3, 3))
-    kernel = BVHKernel(tris, prim_base=0)
+    kernel = BVHKernel.over(tris, prim_base=0)
     o, d = _rays(2000, [0, 0, 0], 0.5, seed=15)
     away = Array3f(*np.tile([10.0, 10.0, 10.0], (2000, 1)).T)     # outside, pointing away
     steps, tests = (a.numpy() for a in kernel.closest_hit_work(away, Array3f(*np.abs(d.numpy()))))

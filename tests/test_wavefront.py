@@ -27,7 +27,7 @@ def kernel_and_rays():
     o = rng.uniform(-1.2, 1.2, (N, 3))
     d = rng.normal(size=(N, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    return BVHKernel(tris, prim_base=5), Array3f(*o.T), Array3f(*d.T), rng
+    return BVHKernel.over(tris, prim_base=5), Array3f(*o.T), Array3f(*d.T), rng
 
 
 def test_batched_closest_hits_are_the_walks(kernel_and_rays):

@@ -169,16 +169,10 @@ def triangle_frames(v0: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> np.ndarra
 
 
 class BVHKernel:
-    """The BVH's inner nodes and triangles on the device, and their traversal; triangle ids are offset by
-    `prim_base`. The triangles are given as bvh_build.build takes them; `tables`: their Layout if already
-    built (shapes.bvh_cache), else built here; `frames`: their triangle_frames if already computed."""
+    """The BVH's inner nodes and triangles on the device, and their traversal: the triangles' Layout
+    (built, or from shapes.bvh_cache) and triangle_frames; triangle ids are offset by `prim_base`."""
 
-    def __init__(self, vertices: np.ndarray, prim_base: int, tables: Layout | None = None,
-                 frames: np.ndarray | None = None, faces: np.ndarray | None = None):
-        tables = layout(vertices, faces) if tables is None else tables
-        if frames is None:
-            v = (vertices if faces is None else vertices[faces]).transpose(1, 2, 0)
-            frames = triangle_frames(v[0], v[1] - v[0], v[2] - v[0])
+    def __init__(self, tables: Layout, frames: np.ndarray, prim_base: int):
         self.grid = BoxGrid(*tables.root)
         self.rows = tables.rows
         self.nodes = UInt32(aligned(tables.nodes))
@@ -189,6 +183,12 @@ class BVHKernel:
         tris.reshape(-1, 3, 4)[:, :, :3] = np.take(frames, tables.order, axis=0)
         tris[:, 3] = (tables.order + prim_base).astype(_UINT).view(HOST_FLOAT)
         self.tris = Float(tris.ravel())
+
+    @classmethod
+    def over(cls, tri_vertices: np.ndarray, prim_base: int) -> BVHKernel:
+        """The BVH of triangles given as (n, 3, 3) vertices, built here."""
+        v = tri_vertices.transpose(1, 2, 0)
+        return cls(layout(tri_vertices), triangle_frames(v[0], v[1] - v[0], v[2] - v[0]), prim_base)
 
     def _child(self, x: ArrayXu, k: int, slope: Array3f, offset: Array3f,
                t_max: Float) -> tuple[Bool, Float, UInt32]:

@@ -119,7 +119,7 @@ class MeshSet(ShapeSet):
         with ThreadPoolExecutor(1) as pool:
             frames = pool.submit(self.frames)
             tables = cached_layout(self._vertices, source=source, faces=self._faces)
-            return BVHKernel(self._vertices, self.base, tables, frames.result())
+            return BVHKernel(tables, frames.result(), self.base)
 
     @property
     def count(self) -> int:
