@@ -322,6 +322,14 @@ def cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+def bounding_box(points: list[np.ndarray]) -> np.ndarray:
+    """(2, 3) least and greatest coordinates over arrays of points (n, 3), column by column (faster than
+    reducing over axis 0 of an (n, 3) array)."""
+    lo = [[p[:, k].min() for k in range(3)] for p in points]
+    hi = [[p[:, k].max() for k in range(3)] for p in points]
+    return np.array([np.min(lo, axis=0), np.max(hi, axis=0)])
+
+
 def length_rows(a: np.ndarray) -> np.ndarray:
     """Euclidean lengths (1, n) of coordinate rows (3, n)."""
     return np.sqrt(dot_rows(a, a))[None]

@@ -13,6 +13,7 @@ import numpy as np
 from .film import ReconstructionFilter
 from .lights import DELTA_KINDS, ConstantEnvironment, DirectionalLight, EnvironmentMap, PointLight
 from .materials import BSDF
+from .meshes import bounding_box
 from .shapes import Cylinder, Mesh, Rectangle, Sphere, in_primitive_order
 
 
@@ -138,6 +139,5 @@ class Scene:
         pts = [np.atleast_2d(p) for s in self.shapes for p in s.extent_points()]
         if not pts:
             return 1.0
-        lo = np.min([[p[:, k].min() for k in range(3)] for p in pts], axis=0)   # by column: faster on (n, 3)
-        hi = np.max([[p[:, k].max() for k in range(3)] for p in pts], axis=0)
+        lo, hi = bounding_box(pts)
         return float(np.linalg.norm(hi - lo)) or 1.0

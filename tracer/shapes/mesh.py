@@ -13,7 +13,8 @@ import numpy as np
 from .. import transform
 from .bvh import BVHKernel, triangle_frames
 from .bvh_cache import cached_layout
-from ..meshes import MeshError, corner_rows, cross_rows, length_rows, read_obj, read_ply, vertex_normals
+from ..meshes import (MeshError, bounding_box, corner_rows, cross_rows, length_rows, read_obj, read_ply,
+                      vertex_normals)
 from ..serialized import read_serialized
 from ..jit import HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, vec3
 from ..sampling import square_to_uniform_triangle
@@ -196,10 +197,8 @@ class MeshSet(ShapeSet):
 
     @cached_property
     def _box(self) -> np.ndarray:
-        """(2, 3) least and greatest coordinates of the meshes' vertices (column by column: faster on (n, 3))."""
-        lo = [[m.vertices[:, k].min() for k in range(3)] for m in self.shapes]
-        hi = [[m.vertices[:, k].max() for k in range(3)] for m in self.shapes]
-        return np.array([np.min(lo, axis=0), np.max(hi, axis=0)])
+        """(2, 3) least and greatest coordinates of the meshes' vertices."""
+        return bounding_box([m.vertices for m in self.shapes])
 
     def describe(self) -> str:
         return f"{self.count} triangles (Moeller-Trumbore, {'in a BVH' if self.bvh is not None else 'brute force'})"
