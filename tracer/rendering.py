@@ -18,7 +18,7 @@ from .jit import BACKEND, PRECISION
 from .launch import seed_state
 from .plan import Plan, plan_render
 from .scene import Scene, SceneError
-from .shapes import BVH_THRESHOLD
+from .shapes import MeshSet
 from .shapes.bvh import BATCHED_WALKS
 
 ESTIMATORS = (PathEstimator.name, BranchingEstimator.name)
@@ -141,7 +141,7 @@ def make_plan(scene: Scene, spp: int, estimator: PathEstimator | BranchingEstima
     elif geometry is not None:
         extra = {"wavefront": geometry.bounce_by_bounce}
     else:
-        extra = {"wavefront": scene.triangle_count > BVH_THRESHOLD and BATCHED_WALKS}
+        extra = {"wavefront": MeshSet.uses_bvh(scene.triangle_count) and BATCHED_WALKS}
     return plan_render(width, height, spp, estimator.name, estimator.max_depth, border=border,
                        float_bytes=8 if PRECISION == "double" else 4, images=images,
                        max_pass_samples=width * height if one_spp_passes else None, **extra)

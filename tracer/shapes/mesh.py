@@ -110,9 +110,14 @@ class MeshSet(ShapeSet):
             else np.zeros((0, 3), np.int64)
         self.smooth = any(m.normals is not None for m in meshes)
         source = [a for m in meshes for a in (m.vertices, m.faces)]   # what the triangles are made of
-        self.bvh = self._bvh(source) if self.count > bvh_threshold else None
+        self.bvh = self._bvh(source) if self.uses_bvh(self.count, bvh_threshold) else None
         self.corner_normals = Float(self._corner_normals().ravel())
         self.corner_uvs = None
+
+    @staticmethod
+    def uses_bvh(triangles: int, bvh_threshold: int = BVH_THRESHOLD) -> bool:
+        """Whether a MeshSet of this many triangles puts them into a BVH."""
+        return triangles > bvh_threshold
 
     def _bvh(self, source: list[np.ndarray]) -> BVHKernel:
         """The BVH over the triangles; their frames are computed (NumPy, mostly without the GIL) on a second
