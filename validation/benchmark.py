@@ -117,7 +117,10 @@ def _setup_from_disk_cache(job: dict) -> float:
             setup()           # builds and stores the BVH
             return setup()    # reads it back
         finally:
-            os.environ.pop(bvh_cache.ENV) if before is None else os.environ.update({bvh_cache.ENV: before})
+            if before is None:
+                del os.environ[bvh_cache.ENV]
+            else:
+                os.environ[bvh_cache.ENV] = before
 
 
 def measure(job: dict, cold: bool = False) -> dict:
@@ -556,8 +559,8 @@ def mesh_markdown(rows: dict) -> list[str]:
         f"{MESH_SIZE} x {MESH_SIZE}, {MESH_SPP} spp, max_depth {MESH_DEPTH}. Render only: median of {2 * REPEATS} "
         f"renders in two processes per renderer, run tracer, Mitsuba, Mitsuba, tracer (each process renders once "
         f"to warm up, then {REPEATS} times, the scene loaded once). Setup (the mean of the two processes'): the "
-        "tracer's `load_scene` (XML, OBJ, normals) and `SceneGeometry` (BVH build, tables), Mitsuba's `load_file` (which builds Embree's BVH); the tracer's also "
-        "in a process that built the scene before, its BVH read from the on-disk cache (the meshes read again). "
+        "tracer's `load_scene` (XML, OBJ, normals) and `SceneGeometry` (BVH build, tables), Mitsuba's `load_file` "
+        "(which builds Embree's BVH); the tracer's also in a process that built the scene before, its BVH read from the on-disk cache (the meshes read again). "
         "Whole process: "
         f"`tracer render` and `mitsuba -m llvm_ad_rgb`, same XML, `-D spp={MESH_SPP} -D max_depth={MESH_DEPTH} "
         f"-D width={MESH_SIZE} -D height={MESH_SIZE}`, wall time of the command including writing the EXR, "
