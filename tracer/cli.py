@@ -14,10 +14,8 @@ import importlib
 import os
 import re
 import sys
-import tempfile
 import time
 import traceback
-from importlib import metadata
 from pathlib import Path
 
 from .errors import BackendError, OutputError, SettingsError, UserError
@@ -30,7 +28,21 @@ BACKEND_NOTE = ("The backend is CUDA where Dr.Jit finds a GPU, LLVM on the CPU o
 BUG_EXIT = 70  # EX_SOFTWARE
 
 
+class _Version(argparse.Action):
+    """--version: the versions are looked up only when asked (importing importlib.metadata takes some 40 ms
+    of every command's start)."""
+
+    def __init__(self, option_strings, dest, **kwargs):
+        super().__init__(option_strings, dest, nargs=0, help="show the tracer's and Dr.Jit's versions and exit")
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(_version())
+        parser.exit()
+
+
 def _version() -> str:
+    from importlib import metadata
+
     def of(name):
         try:
             return metadata.version(name)
@@ -42,7 +54,7 @@ def _version() -> str:
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="tracer", description="A Monte Carlo ray tracer on Dr.Jit for Mitsuba 3 scenes.",
                                 epilog=BACKEND_NOTE)
-    p.add_argument("--version", action="version", version=_version())
+    p.add_argument("--version", action=_Version)
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("render", help="render a scene to a linear EXR and an sRGB PNG beside it",
                        epilog=f"{DEPTH_NOTE}. {BACKEND_NOTE}")
@@ -144,6 +156,8 @@ def _use_backend(backend: str | None) -> None:
         os.environ["TRACER_BACKEND"] = backend
     if jit is not None:
         return
+    import tempfile    # here: some 10 ms of every command's start otherwise
+
     with tempfile.TemporaryFile() as log:
         sys.stderr.flush()
         saved = os.dup(2)
