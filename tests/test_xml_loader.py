@@ -258,6 +258,27 @@ def test_a_shared_mesh_file_is_read_once_until_it_changes(tmp_path):
     assert load_scene(path).meshes[0].vertices[:, 0].max() == 2.5
 
 
+def test_mesh_files_read_together_keep_the_shapes_order_and_each_error_its_element(tmp_path):
+    """The loader reads a scene's mesh files together, on threads, after checking every element: the
+    meshes keep their places among the other shapes, and each broken file is refused at its own element."""
+    (tmp_path / "one.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (tmp_path / "two.obj").write_text("v 0 0 0\nv 2 0 0\nv 0 2 0\nv 0 0 2\nf 1 2 3\nf 1 2 4\n")
+    (tmp_path / "binary.obj").write_bytes(bytes(range(256)))
+    (tmp_path / "empty.obj").write_text("v 0 0 0\n")
+    shape = '\n    <shape type="obj"><string name="filename" value="{}"/></shape>'.format
+    good = shape("two.obj") + '\n    <shape type="sphere"/>' + shape("one.obj")
+    s = load_scene(write_scene(tmp_path, good))
+    assert [type(x).__name__ for x in s.shapes] == ["Mesh", "Sphere", "Mesh"]
+    assert [len(m.faces) for m in s.meshes] == [2, 1]
+    path = write_scene(tmp_path, good + shape("binary.obj") + shape("empty.obj"), name="broken.xml")
+    from .test_xml_features import scene_errors
+
+    binary, empty = scene_errors(path)
+    assert_located(binary, path, line_of(path, "binary.obj"))
+    assert_located(empty, path, line_of(path, "empty.obj"))
+    assert "not a text" in binary and "no faces" in empty
+
+
 @pytest.mark.parametrize("body,snippet,bad", [
     ('<shape type="sphere">\n        <float name="radius" value="nan"/>\n    </shape>', 'value="nan"', "nan"),
     ('<shape type="rectangle"><transform name="to_world">\n        <translate x="inf"/>\n'

@@ -23,9 +23,11 @@ from .film import ReconstructionFilter
 from .lights import PLUGINS as LIGHT_PLUGINS
 from .materials import BSDF, Bitmap, Checkerboard, textures
 from .materials import PLUGINS as BSDF_PLUGINS
+from .meshes import MeshError
 from .scene import Camera, Scene, SceneError
 from .shapes import PLUGINS as SHAPE_PLUGINS
 from .shapes.base import ShapeArgs
+from .shapes.mesh import MeshFile, load as load_meshes
 from .spectra import rgb
 
 SUPPORTED = {
@@ -549,7 +551,19 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
                 scene.lights.append(light)
     for node in shapes:
         ctx.attempt(_add_shape, ctx, scene, node)
+    _read_meshes(ctx, scene)
     return scene
+
+
+def _read_meshes(ctx: _Context, scene: Scene) -> None:
+    """Replaces the mesh shapes' MeshFile by their meshes, all read at once (in parallel)."""
+    requests = [s for s in scene.shapes if isinstance(s, MeshFile)]
+    meshes = dict(zip(requests, load_meshes(requests)))
+    for r, m in meshes.items():
+        if isinstance(m, MeshError):
+            ctx.errors.append(str(ctx.error(r.args.node, str(m))))
+    scene.shapes = [meshes[s] if isinstance(s, MeshFile) else s for s in scene.shapes]
+    scene.shapes = [s for s in scene.shapes if not isinstance(s, MeshError)]
 
 
 def _light(ctx: _Context, node: Node):
