@@ -615,6 +615,10 @@ def mesh_markdown(rows: dict) -> list[str]:
         "| geometry: BVH (or cache hit), tables [s] | " + cells(lambda x: f"{x['geometry_seconds']:.2f}", None) + " |",
         "| first render: kernel compile (Dr.Jit's kernel cache as the bench left it) [s] | " + cells(lambda x: f"{x['first_compile']:.2f}", None) + " |",
         "| render [s] | " + cells(lambda x: f"{x['median']:.2f}", lambda x: f"{x['median']:.2f}") + " |",
+        "| the process's first render (its memory fresh; its kernels compiled, or read from the cache) [s] | "
+        + cells(lambda x: f"{x['first_seconds']:.2f}", lambda x: f"{x['first_seconds']:.2f}") + " |",
+        "| the process's peak resident memory after setup and 4 renders [MiB] | "
+        + cells(lambda x: f"{x['peak_mb']:.0f}", lambda x: f"{x['peak_mb']:.0f}") + " |",
         "| rays traced per render (closest hit + shadow) | " + cells(lambda x: f"{x['rays'] / 1e6:.1f} M", None) + " |",
         "| a render with its BVH walks timed [s] | " + cells(walks("timed_render_seconds"), None) + " |",
         "| of which closest-hit walks [s] | " + cells(walks("closest_walk_seconds"), None) + " |",
