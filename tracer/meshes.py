@@ -283,7 +283,7 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     Computed on coordinate rows (x, y, z of every triangle corner); a vertex's sum runs over the faces' first
     corners in face order, then their second, then their third."""
     corners = np.ascontiguousarray(faces.T)
-    corner = corner_rows(vertices, corners)
+    corner = corner_rows(np.ascontiguousarray(vertices.T), corners)
     edge = [corner[(i + 1) % 3] - corner[i] for i in range(3)]           # c0 -> c1, c1 -> c2, c2 -> c0
     n = cross_rows(edge[2], edge[0])                                     # = edge[0] x -edge[2], exactly
     length = length_rows(n)
@@ -302,11 +302,12 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.divide(out, length, out=np.zeros_like(out), where=length > 0).T)
 
 
-def corner_rows(vertices: np.ndarray, corners: np.ndarray) -> list[np.ndarray]:
-    """The coordinate rows (3, triangles) of the triangles' first, second and third corners; `corners`: the
-    faces' vertex indices as rows (3, triangles)."""
-    rows, corners = np.ascontiguousarray(vertices.T), np.ascontiguousarray(corners)
-    return [np.take(rows, corners[i], axis=1) for i in range(3)]
+def corner_rows(vertex_rows: np.ndarray, corners: np.ndarray) -> list[np.ndarray]:
+    """The coordinate rows (3, triangles) of the triangles' first, second and third corners, from the
+    vertices' coordinate rows (3, vertices, C-contiguous); `corners`: the faces' vertex indices as rows
+    (3, triangles)."""
+    corners = np.ascontiguousarray(corners)
+    return [np.take(vertex_rows, corners[i], axis=1) for i in range(3)]
 
 
 def dot_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
