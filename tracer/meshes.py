@@ -8,6 +8,10 @@ from pathlib import Path
 import numpy as np
 
 
+BLOCK = 1 << 15   # triangles whose coordinate rows are computed at once: the temporaries stay small, where
+                  # all at once they took some 200 MB of fresh memory at 1M triangles
+
+
 class MeshError(ValueError):
     pass
 
@@ -280,10 +284,21 @@ def _fan(vertex: np.ndarray, per_face: np.ndarray) -> np.ndarray:
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Angle-weighted average of the adjacent face normals (Mitsuba's recompute_vertex_normals).
 
-    Computed on coordinate rows (x, y, z of every triangle corner); a vertex's sum runs over the faces' first
-    corners in face order, then their second, then their third."""
-    corners = np.ascontiguousarray(faces.T)
-    corner = corner_rows(np.ascontiguousarray(vertices.T), corners)
+    Computed on coordinate rows (x, y, z of every triangle corner), BLOCK faces at a time; a vertex's sum
+    runs over the faces' first corners in face order, then their second, then their third."""
+    corners, rows = np.ascontiguousarray(faces.T), np.ascontiguousarray(vertices.T)
+    weighted = np.empty((3, 3, len(faces)))                              # coordinate, corner, face
+    for a in range(0, len(faces), BLOCK):
+        _angle_weighted(rows, corners[:, a:a + BLOCK], weighted[:, :, a:a + BLOCK])
+    index = corners.ravel()
+    out = np.stack([np.bincount(index, weighted[k].ravel(), minlength=len(vertices)) for k in range(3)])
+    length = length_rows(out)
+    return np.ascontiguousarray(np.divide(out, length, out=np.zeros_like(out), where=length > 0).T)
+
+
+def _angle_weighted(rows: np.ndarray, corners: np.ndarray, weighted: np.ndarray) -> None:
+    """Into `weighted` (coordinate, corner, face): each face's unit normal times its angle at the corner."""
+    corner = corner_rows(rows, corners)
     edge = [corner[(i + 1) % 3] - corner[i] for i in range(3)]           # c0 -> c1, c1 -> c2, c2 -> c0
     n = cross_rows(edge[2], edge[0])                                     # = edge[0] x -edge[2], exactly
     length = length_rows(n)
@@ -291,15 +306,10 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     for e in edge:                                                       # to unit vectors, in place
         np.divide(e, np.maximum(length_rows(e), 1e-30), out=e)
     # the angle at corner i, between its edges to c(i+1) and to c(i+2) (the latter is -edge[i - 1])
-    weighted = np.empty((3, 3, len(faces)))                              # coordinate, corner, face
     for i in range(3):
         cos = dot_rows(edge[i], edge[i - 1])
         np.negative(cos, out=cos)
         np.multiply(n, np.arccos(np.clip(cos, -1, 1, out=cos), out=cos), out=weighted[:, i])
-    index = corners.ravel()
-    out = np.stack([np.bincount(index, weighted[k].ravel(), minlength=len(vertices)) for k in range(3)])
-    length = length_rows(out)
-    return np.ascontiguousarray(np.divide(out, length, out=np.zeros_like(out), where=length > 0).T)
 
 
 def corner_rows(vertex_rows: np.ndarray, corners: np.ndarray) -> list[np.ndarray]:

@@ -15,7 +15,7 @@ import numpy as np
 from .. import transform
 from .bvh import BVHKernel, triangle_frames
 from .bvh_cache import cached_layout
-from ..meshes import (MeshError, bounding_box, corner_rows, cross_rows, length_rows, read_obj, read_ply,
+from ..meshes import (BLOCK, MeshError, bounding_box, corner_rows, cross_rows, length_rows, read_obj, read_ply,
                       vertex_normals)
 from ..serialized import read_serialized
 from ..jit import HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, vec3
@@ -32,7 +32,6 @@ PLUGINS = {"obj": ("filename", "face_normals", "flip_normals", "flip_tex_coords"
                           "silhouette_sampling_weight")}
 # threads that read a scene's mesh files: the cores this process may use
 LOAD_THREADS = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-FRAME_BLOCK = 1 << 15   # triangles whose frames are computed at once (MeshSet._frames_normals)
 BVH_THRESHOLD = 56  # triangles above which a BVH beats the unrolled brute-force tests (measured: brute force wins at 48, the BVH at 64)
 
 
@@ -200,13 +199,12 @@ class MeshSet(ShapeSet):
     @cached_property
     def _frames_normals(self) -> tuple[np.ndarray, np.ndarray]:
         """The triangles' frames (bvh.triangle_frames) and unit geometric normals (right-handed in the
-        corners' order), from their corners' coordinate rows, FRAME_BLOCK triangles at a time: the
-        temporaries then stay small, where all at once they took some 200 MB of fresh memory at 1M
-        triangles (measured: 0.16-0.21 s against 0.27-0.36 s at 997,534 triangles, a fresh process each)."""
+        corners' order), from their corners' coordinate rows, meshes.BLOCK triangles at a time (measured:
+        0.16-0.21 s against 0.27-0.36 s all at once at 997,534 triangles, a fresh process each)."""
         frames, normals = np.empty((self.count, 3, 3), HOST_FLOAT), np.empty((self.count, 3))
         rows, corners = np.ascontiguousarray(self._vertices.T), self._faces.T
-        for a in range(0, self.count, FRAME_BLOCK):
-            block = slice(a, a + FRAME_BLOCK)
+        for a in range(0, self.count, BLOCK):
+            block = slice(a, a + BLOCK)
             c0, c1, c2 = corner_rows(rows, corners[:, block])
             e1, e2 = c1 - c0, c2 - c0
             n = cross_rows(e1, e2)
