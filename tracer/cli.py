@@ -29,8 +29,8 @@ BUG_EXIT = 70  # EX_SOFTWARE
 
 
 class _Version(argparse.Action):
-    """--version: the versions are looked up only when asked (importing importlib.metadata takes some 40 ms
-    of every command's start)."""
+    """--version: the versions are looked up (importlib.metadata) only when asked, not at every command's
+    start."""
 
     def __init__(self, option_strings, dest, **kwargs):
         super().__init__(option_strings, dest, nargs=0, help="show the tracer's and Dr.Jit's versions and exit")
@@ -156,7 +156,7 @@ def _use_backend(backend: str | None) -> None:
         os.environ["TRACER_BACKEND"] = backend
     if jit is not None:
         return
-    import tempfile    # here: some 10 ms of every command's start otherwise
+    import tempfile    # here, not at every command's start
 
     with tempfile.TemporaryFile() as log:
         sys.stderr.flush()
