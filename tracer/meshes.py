@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import io
+from collections.abc import Iterator
 from functools import lru_cache, partial
 from pathlib import Path
 
@@ -286,19 +287,19 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
     Computed on coordinate rows (x, y, z of every triangle corner), BLOCK faces at a time; a vertex's sum
     runs over the faces' first corners in face order, then their second, then their third."""
-    corners, rows = np.ascontiguousarray(faces.T), np.ascontiguousarray(vertices.T)
+    corners = np.ascontiguousarray(faces.T)
     weighted = np.empty((3, 3, len(faces)))                              # coordinate, corner, face
-    for a in range(0, len(faces), BLOCK):
-        _angle_weighted(rows, corners[:, a:a + BLOCK], weighted[:, :, a:a + BLOCK])
+    for block, corner in corner_blocks(vertices, corners):
+        _angle_weighted(corner, weighted[:, :, block])
     index = corners.ravel()
     out = np.stack([np.bincount(index, weighted[k].ravel(), minlength=len(vertices)) for k in range(3)])
     length = length_rows(out)
     return np.ascontiguousarray(np.divide(out, length, out=np.zeros_like(out), where=length > 0).T)
 
 
-def _angle_weighted(rows: np.ndarray, corners: np.ndarray, weighted: np.ndarray) -> None:
-    """Into `weighted` (coordinate, corner, face): each face's unit normal times its angle at the corner."""
-    corner = corner_rows(rows, corners)
+def _angle_weighted(corner: list[np.ndarray], weighted: np.ndarray) -> None:
+    """Into `weighted` (coordinate, corner, face): each face's unit normal times its angle at the corner,
+    from the faces' corner rows (corner_blocks)."""
     edge = [corner[(i + 1) % 3] - corner[i] for i in range(3)]           # c0 -> c1, c1 -> c2, c2 -> c0
     n = cross_rows(edge[2], edge[0])                                     # = edge[0] x -edge[2], exactly
     length = length_rows(n)
@@ -312,12 +313,13 @@ def _angle_weighted(rows: np.ndarray, corners: np.ndarray, weighted: np.ndarray)
         np.multiply(n, np.arccos(np.clip(cos, -1, 1, out=cos), out=cos), out=weighted[:, i])
 
 
-def corner_rows(vertex_rows: np.ndarray, corners: np.ndarray) -> list[np.ndarray]:
-    """The coordinate rows (3, triangles) of the triangles' first, second and third corners, from the
-    vertices' coordinate rows (3, vertices, C-contiguous); `corners`: the faces' vertex indices as rows
-    (3, triangles)."""
-    corners = np.ascontiguousarray(corners)
-    return [np.take(vertex_rows, corners[i], axis=1) for i in range(3)]
+def corner_blocks(vertices: np.ndarray, corners: np.ndarray) -> Iterator[tuple[slice, list[np.ndarray]]]:
+    """The triangles BLOCK at a time: (their slice, the coordinate rows (3, triangles) of their first,
+    second and third corners); `corners`: the faces' vertex indices as rows (3, triangles)."""
+    rows, corners = np.ascontiguousarray(vertices.T), np.ascontiguousarray(corners)
+    for a in range(0, corners.shape[1], BLOCK):
+        block = slice(a, a + BLOCK)
+        yield block, [np.take(rows, corners[i, block], axis=1) for i in range(3)]
 
 
 def dot_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
