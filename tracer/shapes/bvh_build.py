@@ -100,14 +100,14 @@ def build(vertices: np.ndarray, faces: np.ndarray | None = None) -> Tree:
     cat = np.concatenate
     left, right, first, count = cat(left), cat(right), cat(first), cat(count)
     order = lists.ids[:n].numpy().astype(np.int64)
-    leaf = left < 0
+    leaf = np.flatnonzero(left < 0)    # indices, not masks: NumPy's masked writes to rows take longer
     leaf_lo, leaf_hi = _leaf_boxes(verts, lists.ids, first[leaf], count[leaf])
     lo, hi = np.empty((n_nodes, 3), leaf_lo.dtype), np.empty((n_nodes, 3), leaf_hi.dtype)
     lo[leaf], hi[leaf] = leaf_lo, leaf_hi
     for (b, e), (next_b, next_e) in zip(levels[-2::-1], levels[:0:-1]):   # bottom-up
-        inner = ~leaf[b:e]    # their children, in pairs, are the next level's nodes
-        lo[b:e][inner] = np.minimum(lo[next_b:next_e:2], lo[next_b + 1:next_e:2])
-        hi[b:e][inner] = np.maximum(hi[next_b:next_e:2], hi[next_b + 1:next_e:2])
+        inner = b + np.flatnonzero(left[b:e] >= 0)    # their children, in pairs, are the next level's nodes
+        lo[inner] = np.minimum(lo[next_b:next_e:2], lo[next_b + 1:next_e:2])
+        hi[inner] = np.maximum(hi[next_b:next_e:2], hi[next_b + 1:next_e:2])
     return Tree(lo, hi, left, right, first, count, order, levels)
 
 

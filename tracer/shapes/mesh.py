@@ -158,10 +158,13 @@ class MeshSet(ShapeSet):
     def __init__(self, meshes: list[Mesh], base: int, bvh_threshold: int = BVH_THRESHOLD):
         super().__init__(meshes, base)
         # every mesh's vertices, and faces numbering them
-        first = np.cumsum([0] + [len(m.vertices) for m in meshes])
+        first_vertex, first_face = (np.cumsum([0] + [len(a) for a in arrays])
+                                    for arrays in ([m.vertices for m in meshes], [m.faces for m in meshes]))
         self._vertices = np.concatenate([m.vertices for m in meshes]) if meshes else np.zeros((0, 3))
-        self._faces = np.concatenate([m.faces + k for m, k in zip(meshes, first)]) if meshes \
+        self._faces = np.concatenate([m.faces for m in meshes], dtype=np.int64) if meshes \
             else np.zeros((0, 3), np.int64)
+        for m, k, lo in zip(meshes, first_vertex, first_face):
+            self._faces[lo:lo + len(m.faces)] += k    # in place: a copy of all faces per mesh took longer
         self.smooth = any(m.normals is not None for m in meshes)
         source = [a for m in meshes for a in (m.vertices, m.faces)]   # what the triangles are made of
         self.bvh = self._bvh(source) if self.uses_bvh(self.count, bvh_threshold) else None
