@@ -39,7 +39,7 @@ DEVELOP_MULTIPLE = 3.0      # film (16 bytes per pixel) and its developing, in d
 PATH_LANE_BYTES = 64        # per path-tracer lane of a launch in one kernel (measured about 10)
 WAVEFRONT_LANE_BYTES = 512  # per path-tracer lane of a launch bounce by bounce (measured about 420)
 WAVE_LANE_BYTES = 192       # per ray of a report-estimator level: ray, weight, hit surface (measured about 150)
-SPAWN_LANE_BYTES = 16       # per candidate child of a level (index, slot, validity, compressed index)
+SPAWN_LANE_BYTES = 16       # per possible child of a level (a spawned one takes its mark and parent rank)
 
 
 def pass_spps(pixels: int, spp: int, max_samples: int = MAX_PASS_SAMPLES) -> list[int]:

@@ -123,29 +123,47 @@ def hemisphere_sample(albedo: Array3f, u1: Float, u2: Float, hemisphere: str) ->
     return local, albedo * (2.0 * local.z)                               # (rho/pi) cos / (1/(2 pi))
 
 
+def _child_counts(geo, at: Vertices, wave: Wavefront, vertex: int, max_depth: int,
+                  settings: BranchingEstimator) -> UInt32:
+    """Children each vertex spawns: M at a diffuse vertex (while they can still reach a light within
+    max_depth), one at the front of a mirror, two at glass, none where the ray left the scene."""
+    count = UInt32(0)
+    if DIFFUSE in geo.materials.kinds and vertex + 2 <= max_depth:
+        count = dr.select(at.diffuse, settings.indirect, count)
+    if CONDUCTOR in geo.materials.kinds:
+        count = dr.select((at.kind == CONDUCTOR) & (dr.dot(at.surf.ns, wave.d) < 0), 1, count)
+    if DIELECTRIC in geo.materials.kinds:
+        count = dr.select(at.kind == DIELECTRIC, 2, count)
+    return dr.select(at.surf.prim != NO_PRIM, count, 0)
+
+
+def _children(count: UInt32) -> tuple[UInt32, UInt32]:
+    """(parent, slot) of every child, in order of parent, then slot 0 to count[parent] - 1: the parents
+    that have children are compressed, each one's first child found by a prefix sum of their counts, and
+    each child's parent by a prefix sum over the children of marks at those first children (a lane per
+    child, not per possible child: with M = 8, most vertices' eight slots would else be tested and
+    compressed)."""
+    parents = dr.compress(count > 0)
+    if dr.width(parents) == 0:
+        return parents, parents
+    count = dr.gather(UInt32, count, parents)
+    end = dr.prefix_reduce(dr.ReduceOp.Add, count, exclusive=False)   # past each parent's last child
+    first = end - count
+    mark = dr.zeros(UInt32, end[dr.width(end) - 1])
+    dr.scatter(mark, 1, first, dr.arange(UInt32, dr.width(first)) > 0)
+    rank = dr.prefix_reduce(dr.ReduceOp.Add, mark, exclusive=False)   # its parent's index among `parents`
+    return dr.gather(UInt32, parents, rank), dr.arange(UInt32, dr.width(mark)) - dr.gather(UInt32, first, rank)
+
+
 def _spawn(geo, at: Vertices, wave: Wavefront, vertex: int, max_depth: int, settings: BranchingEstimator,
            seed: int) -> Wavefront | None:
     """The next level: M hemisphere rays per diffuse vertex (while their vertex can still reach a light
     within max_depth), the mirror's reflection, glass's reflection and refraction."""
     surf, ns, kind, diffuse = at.surf, at.ns, at.kind, at.diffuse
-    slots = settings.slots
-    lane = dr.arange(UInt32, len(wave) * slots)
-    parent, slot = lane // slots, lane % slots
-    k = dr.gather(UInt32, kind, parent)
-    valid = Bool(False)
-    if DIFFUSE in geo.materials.kinds and vertex + 2 <= max_depth:
-        valid |= dr.gather(Bool, diffuse, parent) & (slot < settings.indirect)
-    if CONDUCTOR in geo.materials.kinds:
-        front = dr.dot(dr.gather(Array3f, surf.ns, parent), dr.gather(Array3f, wave.d, parent)) < 0
-        valid |= (k == CONDUCTOR) & (slot == 0) & front
-    if DIELECTRIC in geo.materials.kinds:
-        valid |= (k == DIELECTRIC) & (slot < 2)
-    valid &= dr.gather(UInt32, surf.prim, parent) != NO_PRIM
-    child = dr.compress(valid)
-    n = dr.width(child)
+    parent, slot = _children(_child_counts(geo, at, wave, vertex, max_depth, settings))
+    n = dr.width(parent)
     if n == 0:
         return None
-    parent, slot = dr.gather(UInt32, parent, child), dr.gather(UInt32, slot, child)
     k = dr.gather(UInt32, kind, parent)
     p = dr.gather(Array3f, surf.p, parent)
     d = dr.gather(Array3f, wave.d, parent)
