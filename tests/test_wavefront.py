@@ -173,3 +173,12 @@ def test_info_says_which_scenes_go_bounce_by_bounce():
     meshes = SceneGeometry(tracer.load_scene(SCENES / "cornell_box.xml"), bvh_threshold=0)
     assert not any("bounce by bounce" in line for line in room.describe())
     assert any("bounce by bounce" in line for line in meshes.describe()) == BATCHED_WALKS
+
+
+@pytest.mark.parametrize("count", [[0, 3, 1, 0, 0, 2, 8], [5], [1, 1, 1], [0, 0, 4], [0, 0]])
+def test_a_levels_children_are_each_parents_slots_in_order(count):
+    from tracer.integrators.report import _children
+
+    parent, slot = _children(UInt32(count))
+    assert list(zip(parent.numpy().tolist(), slot.numpy().tolist())) == \
+        [(p, s) for p, c in enumerate(count) for s in range(c)]
