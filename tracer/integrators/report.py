@@ -159,7 +159,7 @@ def _spawn(geo, at: Vertices, wave: Wavefront, vertex: int, max_depth: int, sett
            seed: int) -> Wavefront | None:
     """The next level: M hemisphere rays per diffuse vertex (while their vertex can still reach a light
     within max_depth), the mirror's reflection, glass's reflection and refraction."""
-    surf, ns, kind, diffuse = at.surf, at.ns, at.kind, at.diffuse
+    surf, ns, kind = at.surf, at.ns, at.kind
     parent, slot = _children(_child_counts(geo, at, wave, vertex, max_depth, settings))
     n = dr.width(parent)
     if n == 0:
