@@ -57,3 +57,13 @@ def vec3(v) -> Array3f:
 def opaque_u32(value: int) -> UInt32:
     """A run-time constant: changing it does not recompile the kernel."""
     return dr.opaque(UInt32, value)
+
+
+def segment_of(first, count: int):
+    """The segment of each of `count` elements, for segments that start at elements `first` (ascending, the
+    first 0; an unsigned Dr.Jit array, of any backend): a mark at each segment's start but the first one's,
+    summed by an inclusive prefix sum."""
+    kind = type(first)
+    mark = dr.zeros(kind, count)
+    dr.scatter(mark, 1, first, dr.arange(kind, dr.width(first)) > 0)
+    return dr.prefix_reduce(dr.ReduceOp.Add, mark, exclusive=False)

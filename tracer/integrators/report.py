@@ -18,7 +18,7 @@ from ..geometry import SceneGeometry, Surface
 from ..materials import CONDUCTOR, DIELECTRIC, DIFFUSE
 from ..materials.dielectric import dielectric_interface
 from ..materials.fresnel import reflect
-from ..jit import NO_PRIM, PCG32, Array3f, Bool, Float, UInt32
+from ..jit import NO_PRIM, PCG32, Array3f, Bool, Float, UInt32, segment_of
 from ..sampling import seeded_rng, square_to_cosine_hemisphere, square_to_uniform_hemisphere, to_world
 from .direct import facing_normal, sample_direct
 
@@ -140,19 +140,16 @@ def _child_counts(geo, at: Vertices, wave: Wavefront, vertex: int, max_depth: in
 def _children(count: UInt32) -> tuple[UInt32, UInt32]:
     """(parent, slot) of every child, in order of parent, then slot 0 to count[parent] - 1: the parents
     that have children are compressed, each one's first child found by a prefix sum of their counts, and
-    each child's parent by a prefix sum over the children of marks at those first children (a lane per
-    child, not per possible child: with M = 8, most vertices' eight slots would else be tested and
-    compressed)."""
+    each child's parent as the segment it falls in (jit.segment_of). A lane per child, not per possible
+    child: with M = 8, most vertices' eight slots would else be tested and compressed."""
     parents = dr.compress(count > 0)
     if dr.width(parents) == 0:
         return parents, parents
     count = dr.gather(UInt32, count, parents)
     end = dr.prefix_reduce(dr.ReduceOp.Add, count, exclusive=False)   # past each parent's last child
     first = end - count
-    mark = dr.zeros(UInt32, end[dr.width(end) - 1])
-    dr.scatter(mark, 1, first, dr.arange(UInt32, dr.width(first)) > 0)
-    rank = dr.prefix_reduce(dr.ReduceOp.Add, mark, exclusive=False)   # its parent's index among `parents`
-    return dr.gather(UInt32, parents, rank), dr.arange(UInt32, dr.width(mark)) - dr.gather(UInt32, first, rank)
+    rank = segment_of(first, end[dr.width(end) - 1])   # each child's parent, by its index among `parents`
+    return dr.gather(UInt32, parents, rank), dr.arange(UInt32, dr.width(rank)) - dr.gather(UInt32, first, rank)
 
 
 def _spawn(geo, at: Vertices, wave: Wavefront, vertex: int, max_depth: int, settings: BranchingEstimator,

@@ -27,7 +27,7 @@ from drjit.llvm import Float as _Float32, Float64 as _Float64, UInt8 as _UInt8, 
     UInt64 as _UInt64
 
 from ..errors import BackendError
-from ..jit import LLVM_FIX
+from ..jit import LLVM_FIX, segment_of
 
 LEAF_SIZE = 4      # most triangles in a leaf (at most 7: a leaf's link holds the count in 3 bits)
 BINS = 16          # SAH candidate splits per node: between bins of equal triangle counts
@@ -233,15 +233,13 @@ def _sah(lists: _Lists, b: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.nd
     for a in (1, 2):   # the first of equal extents, as np.argmax
         longer = extent[a] > longest
         axis, longest = dr.select(longer, a, axis), dr.select(longer, extent[a], longest)
-    node_start = dr.zeros(_UInt32, total)      # 1 at each node's first bin but the first node's
-    dr.scatter(node_start, 1, first_bin, dr.arange(_UInt32, width) > 0)
-    dr.eval(axis, node_start)
+    dr.eval(axis)
 
     def empty(lanes):   # the empty box: 6 values (-lo, hi)
         return [dr.full(_Float32, -inf, lanes) for _ in range(6)]
 
     # a lane per bin: bin k of node j
-    j = dr.prefix_reduce(dr.ReduceOp.Add, node_start, exclusive=False)
+    j = segment_of(first_bin, total)
     k = dr.arange(_UInt32, total) - dr.gather(_UInt32, first_bin, j)
     s_j = dr.gather(_UInt32, s, j)
     q, few, sampled = dr.minimum(s_j, SAMPLES), s_j < BINS, s_j > SAMPLES    # few: one triangle per bin
