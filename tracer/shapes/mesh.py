@@ -158,8 +158,8 @@ class MeshSet(ShapeSet):
     def __init__(self, meshes: list[Mesh], base: int, bvh_threshold: int = BVH_THRESHOLD):
         super().__init__(meshes, base)
         # every mesh's vertices, and faces numbering them
-        first_vertex, first_face = (np.cumsum([0] + [len(a) for a in arrays])
-                                    for arrays in ([m.vertices for m in meshes], [m.faces for m in meshes]))
+        first_vertex = np.cumsum([0] + [len(m.vertices) for m in meshes])
+        first_face = np.cumsum([0] + [len(m.faces) for m in meshes])
         self._vertices = np.concatenate([m.vertices for m in meshes]) if meshes else np.zeros((0, 3))
         self._faces = np.concatenate([m.faces for m in meshes], dtype=np.int64) if meshes \
             else np.zeros((0, 3), np.int64)
