@@ -199,8 +199,8 @@ REPORT_COMMAND = ["--estimator", "report", "--report-depth", "2", "-N", "16", "-
 def report_whole_process(progress) -> dict:
     """Wall seconds of `tracer render` in the report's configuration (REPORT_COMMAND on the room), from
     process start to the written EXR and PNG: a run that warms Dr.Jit's kernel cache, then WHOLE_RUNS timed
-    ones, the tracer's modules compiled to bytecode first (as whole_process)."""
-    compileall.compile_dir(str(ROOT / "tracer"), quiet=1)
+    ones, the tracer's modules compiled to bytecode first (_compile_tracer)."""
+    _compile_tracer()
     seconds = []
     with tempfile.TemporaryDirectory() as tmp:
         command = [sys.executable, "-m", "tracer.cli", "render", str(ROOM), *REPORT_COMMAND, "-o", f"{tmp}/r.exr"]
@@ -359,12 +359,17 @@ def _pool(first: dict, second: dict) -> None:
     first["setup_seconds"] = statistics.median(first["setup_runs"])
 
 
+def _compile_tracer() -> None:
+    """The tracer's modules compiled to bytecode, as an installed package's are, before whole-process runs:
+    where the environment sets PYTHONDONTWRITEBYTECODE, every run would else compile them anew (about 0.1 s)."""
+    compileall.compile_dir(str(ROOT / "tracer"), quiet=1)
+
+
 def whole_process(scene: Path, progress) -> dict:
     """Wall seconds of `tracer render` (without and with a warm on-disk BVH cache) and of the `mitsuba`
-    command on `scene` (-D spp, max_depth, width, height), WHOLE_RUNS each, alternated in turn. The
-    tracer's modules are compiled to bytecode first, as an installed package's are: where the environment
-    sets PYTHONDONTWRITEBYTECODE, every run would else compile them anew (about 0.1 s)."""
-    compileall.compile_dir(str(ROOT / "tracer"), quiet=1)
+    command on `scene` (-D spp, max_depth, width, height), WHOLE_RUNS each, alternated in turn, the
+    tracer's modules compiled to bytecode first (_compile_tracer)."""
+    _compile_tracer()
     defines = [f"spp={MESH_SPP}", f"max_depth={MESH_DEPTH}", f"width={MESH_SIZE}", f"height={MESH_SIZE}"]
     defines = [x for d in defines for x in ("-D", d)]
     times: dict[str, list[float]] = {"tracer": [], "tracer, BVH from disk cache": [], "Mitsuba": []}
@@ -597,8 +602,8 @@ def mesh_markdown(rows: dict) -> list[str]:
         f"renders in two processes per renderer, run tracer, Mitsuba, Mitsuba, tracer (each process renders once "
         f"to warm up, then {REPEATS} times, the scene loaded once). Setup (the mean of the two processes'): the "
         "tracer's `load_scene` (XML, OBJ, normals) and `SceneGeometry` (BVH build, tables), Mitsuba's `load_file` "
-        "(which builds Embree's BVH); the tracer's also in a process that built the scene before, its BVH read from the on-disk cache (the meshes read again). "
-        "Whole process: "
+        "(which builds Embree's BVH); the tracer's also in a process that built the scene before, its BVH read "
+        "from the on-disk cache (the meshes read again). Whole process: "
         f"`tracer render` and `mitsuba -m llvm_ad_rgb`, same XML, `-D spp={MESH_SPP} -D max_depth={MESH_DEPTH} "
         f"-D width={MESH_SIZE} -D height={MESH_SIZE}`, wall time of the command including writing the EXR, "
         f"median of {WHOLE_RUNS} runs each, the renderers alternated (each first in turn); the tracer also with a "
