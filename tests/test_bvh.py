@@ -178,11 +178,11 @@ def _area(lo, hi):
 
 @pytest.mark.parametrize("ties", [False, True])
 def test_build_splits_each_node_where_the_surface_area_heuristic_is_least(ties):
-    """Every inner node: its children are the triangles on either side of a plane across the axis of the
-    node's largest centroid extent (float32 centroids), and no other split between its BINS equal-count
-    bins along that axis (sorted by centroid, ties by the next axis) has a lower SAH cost n_l A_l + n_r A_r
-    (recomputed here in float64, by brute force over the candidates); also with many equal centroid
-    coordinates. Leaves hold at most LEAF_SIZE triangles; boxes are exact."""
+    """Every inner node: its left child is the first triangles of the node's list sorted along one axis
+    (by float32 centroid, ties by the next axis), and no split between the BINS equal-count bins along any
+    of the three axes has a lower SAH cost n_l A_l + n_r A_r (recomputed here in float64, by brute force
+    over the candidates); also with many equal centroid coordinates. Leaves hold at most LEAF_SIZE
+    triangles; boxes are exact."""
     rng = np.random.default_rng(11)
     tris = rng.uniform(-1, 1, (2000, 1, 3)) * [4.0, 1.0, 0.5] + rng.uniform(-0.05, 0.05, (2000, 3, 3))
     if ties:
@@ -191,26 +191,29 @@ def test_build_splits_each_node_where_the_surface_area_heuristic_is_least(ties):
     centroid = ((tris.min(axis=1) + tris.max(axis=1)) / 2).astype(np.float32)
     slots = _node_slots(tree)
     assert (tree.count[~tree.inner] <= LEAF_SIZE).all() and (tree.count[~tree.inner] >= 1).all()
+    axes = []
     for node in np.flatnonzero(tree.inner):
-        a, b = centroid[slots[tree.left[node]]], centroid[slots[tree.right[node]]]
-        mine = np.concatenate([slots[tree.left[node]], slots[tree.right[node]]])
-        c = centroid[mine]
-        axis = np.argmax(c.max(axis=0) - c.min(axis=0))
-        assert a[:, axis].max() <= b[:, axis].min()
+        left = slots[tree.left[node]]
+        mine = np.concatenate([left, slots[tree.right[node]]])
         lo, hi = tris[mine].min(axis=(0, 1)), tris[mine].max(axis=(0, 1))
         assert np.array_equal(tree.lo[node], lo) and np.array_equal(tree.hi[node], hi)   # exact boxes
+        c = centroid[mine]
+        ordered = [mine[np.lexsort((mine, c[:, (a + 1) % 3], c[:, a]))] for a in range(3)]
+        along = [a for a in range(3) if set(ordered[a][:len(left)]) == set(left)]
+        assert along, "the left child is no prefix of the node's triangles along any axis"
+        axes.append(along[0])
         if len(mine) > 256:
             continue   # bins of sampled triangles: checked on the smaller nodes
-        ordered = mine[np.lexsort((mine, c[:, (axis + 1) % 3], c[:, axis]))]
         bins = min(len(mine), BINS)
 
-        def cost(n_left):
-            left, right = tris[ordered[:n_left]], tris[ordered[n_left:]]
-            return (n_left * _area(left.min(axis=(0, 1)), left.max(axis=(0, 1)))
-                    + len(right) * _area(right.min(axis=(0, 1)), right.max(axis=(0, 1))))
+        def cost(order, n_left):
+            a, b = tris[order[:n_left]], tris[order[n_left:]]
+            return (n_left * _area(a.min(axis=(0, 1)), a.max(axis=(0, 1)))
+                    + len(b) * _area(b.min(axis=(0, 1)), b.max(axis=(0, 1))))
 
-        best = min(cost(len(mine) * k // bins) for k in range(1, bins))
-        assert cost(len(a)) <= best * (1 + 1e-5)
+        best = min(cost(order, len(mine) * k // bins) for order in ordered for k in range(1, bins))
+        assert cost(ordered[along[0]], len(left)) <= best * (1 + 1e-5)
+    assert len(set(axes)) == 3    # the scene is wider along x than y and z, yet nodes split along each
 
 
 def test_build_of_equal_triangles_stays_balanced():
