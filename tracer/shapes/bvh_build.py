@@ -25,8 +25,8 @@ import drjit as dr
 import numpy as np
 # the build's kernels run on the host, on Dr.Jit's LLVM backend, whatever the tracer's: their rounding is
 # checked against NumPy's there (a GPU's compiler may fuse a multiply and an add, or flush denormals)
-from drjit.llvm import Float as _Float32, Float64 as _Float64, UInt8 as _UInt8, UInt32 as _UInt32, \
-    UInt64 as _UInt64
+from drjit.llvm import ArrayXf as _ArrayXf32, Float as _Float32, Float64 as _Float64, UInt8 as _UInt8, \
+    UInt32 as _UInt32, UInt64 as _UInt64
 
 from ..errors import BackendError
 from ..jit import LLVM_FIX, segment_of
@@ -34,6 +34,7 @@ from ..jit import LLVM_FIX, segment_of
 LEAF_SIZE = 4      # most triangles in a leaf (at most 7: a leaf's link holds the count in 3 bits)
 BINS = 16          # SAH candidate splits per node: between bins of equal triangle counts
 SAMPLES = 256      # triangles whose boxes stand for a node's bins (all of a smaller node's)
+BOX = 8            # values per triangle's box in the build's table: -lo, hi and two of padding (one packet load)
 
 
 @dataclass
@@ -144,7 +145,7 @@ def _triangles(vertices: np.ndarray, faces: np.ndarray) -> tuple[_Lists, _Corner
         raise BackendError(f"the BVH build runs on Dr.Jit's LLVM backend, which is unavailable: {LLVM_FIX}")
     verts, n = _Corners(vertices, faces), len(faces)
     t, stride = dr.arange(_UInt32, n), dr.opaque(_UInt32, n)
-    centroid, boxes, bits = dr.empty(_Float32, 3 * n), dr.empty(_Float32, 6 * n), dr.empty(_UInt32, 3 * n)
+    centroid, boxes, bits = dr.empty(_Float32, 3 * n), dr.zeros(_Float32, BOX * n), dr.empty(_UInt32, 3 * n)
     for a in range(3):
         x = verts.coordinate(t, a)
         lo, hi = select_min(select_min(x[0], x[1]), x[2]), select_max(select_max(x[0], x[1]), x[2])
@@ -152,8 +153,8 @@ def _triangles(vertices: np.ndarray, faces: np.ndarray) -> tuple[_Lists, _Corner
         key = dr.reinterpret_array(_UInt32, dr.select(c == 0, 0, c))     # -0.0 as 0.0
         dr.scatter(bits, dr.select(key >> 31 != 0, ~key, key | 0x80000000), a * stride + t)
         dr.scatter(centroid, c, a * stride + t)
-        dr.scatter(boxes, _Float32(-lo), a * stride + t)
-        dr.scatter(boxes, _Float32(hi), (a + 3) * stride + t)
+        dr.scatter(boxes, _Float32(-lo), BOX * t + a)
+        dr.scatter(boxes, _Float32(hi), BOX * t + a + 3)
     dr.eval(bits, centroid, boxes)
     bits = bits.numpy().reshape(3, n)
     position = np.arange(n, dtype=np.uint64)
@@ -195,9 +196,9 @@ def _leaf_boxes(verts: _Corners, ids: _UInt32, first: np.ndarray, count: np.ndar
 class _Lists:
     """The build's per-triangle state on the host backend: `ids` (3n) the triangle ids of every node's
     slots sorted along each axis, axis after axis, and `spare` another such buffer, which a level's
-    partition fills (then the two swap); `centroid` (3n) and `boxes` (6n, as -lo then hi) per axis then
-    triangle; `node` (n) each slot's node among its level's, NONE once in a leaf. Sizes enter the kernels
-    as opaque values, so that a kernel compiled once serves every level and mesh."""
+    partition fills (then the two swap); `centroid` (3n) per axis then triangle, `boxes` (BOX n) per
+    triangle its -lo and hi; `node` (n) each slot's node among its level's, NONE once in a leaf. Sizes enter
+    the kernels as opaque values, so that a kernel compiled once serves every level and mesh."""
     NONE = 0xFFFFFFFF
 
     def __init__(self, n: int, ids: _UInt32, centroid, boxes):
@@ -245,8 +246,8 @@ def _sah(lists: _Lists, b: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.nd
 
     def add_sample(i, *merged):   # the box of sample i (slot i * s / q of the node) merged in
         slot = dr.select(sampled, _UInt32(_UInt64(i) * _UInt64(s_j) // SAMPLES), i)
-        t = dr.gather(_UInt32, lists.ids, base + slot)
-        return (i + 1, *(select_max(merged[c], dr.gather(_Float32, lists.boxes, c * n + t)) for c in range(6)))
+        box = dr.gather(_ArrayXf32, lists.boxes, dr.gather(_UInt32, lists.ids, base + slot), shape=(BOX, dr.width(i)))
+        return (i + 1, *(select_max(merged[c], box[c]) for c in range(6)))
 
     end = bin_start(k + 1)
     bin_box = dr.while_loop((bin_start(k), *empty(total)), lambda i, *_: i < end, add_sample)[1:]
