@@ -9,7 +9,7 @@ import tracer.geometry as geometry
 import drjit as dr
 
 from tracer.shapes.bvh import LEAF_BIT, WIDTH, BVHKernel, layout, wide_children
-from tracer.shapes.bvh_build import BINS, LEAF_SIZE, aligned, build, depth_first
+from tracer.shapes.bvh_build import BINS, LEAF_SIZE, TRAVERSAL_COST, aligned, build, depth_first
 from tracer.jit import NO_PRIM, Array3f, ArrayXu, Bool, Float, UInt32
 
 from .conftest import SCENES, kernel_hashes
@@ -176,13 +176,21 @@ def _area(lo, hi):
     return 2 * (e[0] * e[1] + e[1] * e[2] + e[2] * e[0])
 
 
+def _split_cost(tris, order, n_left):
+    """n_l A_l + n_r A_r of the triangles `order` cut after the first n_left."""
+    a, b = tris[order[:n_left]], tris[order[n_left:]]
+    return (n_left * _area(a.min(axis=(0, 1)), a.max(axis=(0, 1)))
+            + len(b) * _area(b.min(axis=(0, 1)), b.max(axis=(0, 1))))
+
+
 @pytest.mark.parametrize("ties", [False, True])
 def test_build_splits_each_node_where_the_surface_area_heuristic_is_least(ties):
     """Every inner node: its left child is the first triangles of the node's list sorted along one axis
     (by float32 centroid, ties by the next axis), and no split between the BINS equal-count bins along any
     of the three axes has a lower SAH cost n_l A_l + n_r A_r (recomputed here in float64, by brute force
-    over the candidates); also with many equal centroid coordinates. Leaves hold at most LEAF_SIZE
-    triangles; boxes are exact."""
+    over the candidates); also with many equal centroid coordinates. A node of at most LEAF_SIZE triangles
+    is a leaf where no split costs fewer triangle tests (TRAVERSAL_COST + that cost / A), and only there.
+    Leaves hold at most LEAF_SIZE triangles; boxes are exact."""
     rng = np.random.default_rng(11)
     tris = rng.uniform(-1, 1, (2000, 1, 3)) * [4.0, 1.0, 0.5] + rng.uniform(-0.05, 0.05, (2000, 3, 3))
     if ties:
@@ -205,14 +213,17 @@ def test_build_splits_each_node_where_the_surface_area_heuristic_is_least(ties):
         if len(mine) > 256:
             continue   # bins of sampled triangles: checked on the smaller nodes
         bins = min(len(mine), BINS)
-
-        def cost(order, n_left):
-            a, b = tris[order[:n_left]], tris[order[n_left:]]
-            return (n_left * _area(a.min(axis=(0, 1)), a.max(axis=(0, 1)))
-                    + len(b) * _area(b.min(axis=(0, 1)), b.max(axis=(0, 1))))
-
-        best = min(cost(order, len(mine) * k // bins) for order in ordered for k in range(1, bins))
-        assert cost(ordered[along[0]], len(left)) <= best * (1 + 1e-5)
+        best = min(_split_cost(tris, order, len(mine) * k // bins) for order in ordered for k in range(1, bins))
+        assert _split_cost(tris, ordered[along[0]], len(left)) <= best * (1 + 1e-5)
+        if len(mine) <= LEAF_SIZE:   # split only where that costs fewer triangle tests than a leaf
+            assert TRAVERSAL_COST + best / _area(lo, hi) < len(mine) * (1 + 1e-5)
+    for leaf in np.flatnonzero(~tree.inner & (tree.count > 1)):   # and a leaf where splitting costs more
+        mine = slots[leaf]
+        c = centroid[mine]
+        best = min(_split_cost(tris, mine[np.lexsort((mine, c[:, (a + 1) % 3], c[:, a]))], n_left)
+                   for a in range(3) for n_left in range(1, len(mine)))
+        whole = _area(tris[mine].min(axis=(0, 1)), tris[mine].max(axis=(0, 1)))
+        assert whole == 0 or TRAVERSAL_COST + best / whole >= len(mine) * (1 - 1e-5)   # no area: no ray to split
     assert len(set(axes)) == 3    # the scene is wider along x than y and z, yet nodes split along each
 
 
