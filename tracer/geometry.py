@@ -51,6 +51,12 @@ class Surface:
     uv: tuple[Float, Float] | None = None   # texture coordinates, in scenes with textures only
 
 
+def goes_bounce_by_bounce(has_bvh: bool) -> bool:
+    """Whether the path tracer goes bounce by bounce (SceneGeometry.bounce_by_bounce), for a scene with or
+    without a BVH: also before its geometry is built (rendering.make_plan)."""
+    return has_bvh and BATCHED_WALKS
+
+
 class SceneGeometry:
     """`bvh_threshold`: triangles above which they go into a BVH; `material_kinds`: the material codes the
     kernel carries (materials.DIFFUSE, CONDUCTOR, ...; default: those of the scene's materials)."""
@@ -151,7 +157,7 @@ class SceneGeometry:
     @property
     def bounce_by_bounce(self) -> bool:
         """Whether the path tracer goes bounce by bounce, its BVH walks batched (integrators.path)."""
-        return self.meshes.bvh is not None and BATCHED_WALKS
+        return goes_bounce_by_bounce(self.meshes.bvh is not None)
 
     @contextmanager
     def batched(self):
