@@ -287,7 +287,8 @@ class BVHKernel:
         `ray` and `payload`: arrays of one value per ray (or one for all); returns the payload per ray,
         unchanged where not active. `kind`: the query, for timed_walks."""
         width = max(dr.width(x) for x in (*ray, *payload, active))
-        first = tuple(_batch_array(x, width) for x in payload)   # each ray's payload at its start
+        # each ray's payload at its start: one value for all (not copied per ray), or one per ray
+        first = tuple(x if dr.width(x) == 1 else _batch_array(x, width) for x in payload)
         out = tuple(_batch_array(x, width) for x in payload)
         rays = dr.compress(_batch_array(Bool(active), width))   # the rays to walk, by index
         n = dr.width(rays)
@@ -304,7 +305,7 @@ class BVHKernel:
             i = dr.gather(UInt32, rays, r, take)
             values = tuple(x if dr.width(x) == 1 else dr.gather(type(x), x, i, take) for x in ray)
             return (dr.select(take, UInt32(self.root), none), *values, *self.grid.ray_terms(values[0], values[1]),
-                    *(dr.gather(type(x), x, i, take) for x in first))
+                    *(x if dr.width(x) == 1 else dr.gather(type(x), x, i, take) for x in first))
 
         def cond(step, r, *lane):
             return r < count
