@@ -8,11 +8,11 @@ each node's triangles are cut across one of the three axes, between BINS bins of
 where the expected cost of a ray's walk through the children is least over all three axes' candidates (as
 in Embree's binned builder; pbrt-v4 and Wald bin along the axis of the centroids' largest extent alone,
 which took 4 to 7% more walk steps per ray on the bench's meshes), and a node of up to LEAF_SIZE triangles
-stays a leaf where that is cheaper than splitting it. All the nodes of a level are
-split at once, by a few Dr.Jit kernels over the triangles (on the host: the LLVM backend, whatever the
-tracer's), with NumPy for the sorts and the per-level bookkeeping: in NumPy alone the levels' dozens of
-passes and temporaries took 3 to 5 times as long at 0.1 to 1 million triangles (below some 1,000 the
-kernel launches make the build slower, by a few thousandths of a second). The kernels round as written
+stays a leaf where that is cheaper than splitting it. All the nodes of a level are split at once, by a few
+Dr.Jit kernels over the triangles (on the host: the LLVM backend, whatever the tracer's), with NumPy for
+the sorts and the per-level bookkeeping: in NumPy alone the levels' dozens of passes and temporaries took 3
+to 5 times as long at 0.1 to 1 million triangles (below some 1,000 the kernel launches make the build
+slower, by a few thousandths of a second). The kernels round as written
 (float32 boxes, float64 areas and costs, no fused multiply-add, min/max keeping the second of equal
 values), so the tree is the same, bit for bit, on every machine.
 """
@@ -69,8 +69,8 @@ def build(vertices: np.ndarray, faces: np.ndarray | None = None) -> Tree:
     given as (n, 3, 3) vertices.
 
     Each node's triangles are split by a plane across an axis (centroids rounded to float32), where the
-    surface area heuristic's cost is least over the three axes (_sah); a node becomes
-    a leaf where that costs less than splitting it and it holds at most LEAF_SIZE triangles. The triangle ids
+    surface area heuristic's cost is least over the three axes (_sah); a node becomes a leaf where that
+    costs less than splitting it and it holds at most LEAF_SIZE triangles. The triangle ids
     are sorted by centroid once per axis (NumPy); each level then splits all its nodes at once, partitioning
     every axis's list stably into the children's parts (linear time, no sort per level), so that each list
     stays sorted within every node. The per-level work runs as host kernels (_sah, _split) with the lists
@@ -146,17 +146,16 @@ def _triangles(vertices: np.ndarray, faces: np.ndarray) -> tuple[_Lists, _Corner
         raise BackendError(f"the BVH build runs on Dr.Jit's LLVM backend, which is unavailable: {LLVM_FIX}")
     verts, n = _Corners(vertices, faces), len(faces)
     t, stride = dr.arange(_UInt32, n), dr.opaque(_UInt32, n)
-    centroid, boxes, bits = dr.empty(_Float32, 3 * n), dr.zeros(_Float32, BOX * n), dr.empty(_UInt32, 3 * n)
+    boxes, bits = dr.zeros(_Float32, BOX * n), dr.empty(_UInt32, 3 * n)
     for a in range(3):
         x = verts.coordinate(t, a)
         lo, hi = select_min(select_min(x[0], x[1]), x[2]), select_max(select_max(x[0], x[1]), x[2])
         c = _Float32((lo + hi) / 2)
         key = dr.reinterpret_array(_UInt32, dr.select(c == 0, 0, c))     # -0.0 as 0.0
         dr.scatter(bits, dr.select(key >> 31 != 0, ~key, key | 0x80000000), a * stride + t)
-        dr.scatter(centroid, c, a * stride + t)
         dr.scatter(boxes, _Float32(-lo), BOX * t + a)
         dr.scatter(boxes, _Float32(hi), BOX * t + a + 3)
-    dr.eval(bits, centroid, boxes)
+    dr.eval(bits, boxes)
     bits = bits.numpy().reshape(3, n)
     position = np.arange(n, dtype=np.uint64)
     by_index = []      # per axis: the triangles sorted by centroid, ties by index
@@ -174,7 +173,7 @@ def _triangles(vertices: np.ndarray, faces: np.ndarray) -> tuple[_Lists, _Corner
         key |= position
         key.sort()
         ids.append(after[key.astype(np.uint32)])
-    return _Lists(n, host_array(_UInt32, np.concatenate(ids)), centroid, boxes), verts
+    return _Lists(n, host_array(_UInt32, np.concatenate(ids)), boxes), verts
 
 
 def _leaf_boxes(verts: _Corners, ids: _UInt32, first: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -197,16 +196,16 @@ def _leaf_boxes(verts: _Corners, ids: _UInt32, first: np.ndarray, count: np.ndar
 class _Lists:
     """The build's per-triangle state on the host backend: `ids` (3n) the triangle ids of every node's
     slots sorted along each axis, axis after axis, and `spare` another such buffer, which a level's
-    partition fills (then the two swap); `centroid` (3n) per axis then triangle, `boxes` (BOX n) per
-    triangle its -lo and hi; `node` (n) each slot's node among its level's, NONE once in a leaf. Sizes enter
-    the kernels as opaque values, so that a kernel compiled once serves every level and mesh."""
+    partition fills (then the two swap); `boxes` (BOX n) per triangle its -lo and hi; `node` (n) each
+    slot's node among its level's, NONE once in a leaf. Sizes enter the kernels as opaque values, so that a
+    kernel compiled once serves every level and mesh."""
     NONE = 0xFFFFFFFF
 
-    def __init__(self, n: int, ids: _UInt32, centroid, boxes):
-        self.n, self.ids, self.centroid, self.boxes = n, ids, centroid, boxes
+    def __init__(self, n: int, ids: _UInt32, boxes):
+        self.n, self.ids, self.boxes = n, ids, boxes
         self.spare, self.node = dr.empty(_UInt32, 3 * n), dr.zeros(_UInt32, n)
         self.stride = dr.opaque(_UInt32, n)
-        dr.eval(self.ids, self.centroid, self.boxes, self.node)
+        dr.eval(self.ids, self.boxes, self.node)
 
 
 def _sah(lists: _Lists, b: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -218,18 +217,18 @@ def _sah(lists: _Lists, b: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.nd
     weighted by the chance that a ray through the node's box enters the child's (surface areas A); a leaf
     costs its triangles. C = 2 was chosen from 1, 2 and 3, measured on the bench's meshes at 997,534
     triangles (batched closest hits 4.4, 5.2, 5.4 and shadow rays 6.7, 8.2, 7.9 M rays/s): against 1 it
-    makes more nodes leaves, the walks faster, the build 20-30% faster and the node table 38% smaller. A bin's box is that of
-    SAMPLES / BINS triangles evenly spread over it (all of them in a node of up to SAMPLES). Near-equal costs
-    go to the more even split (so that equal triangles do not make a chain). Boxes are float32 (their
-    maxima exact), areas and costs float64, each operation rounded as written (the LLVM backend fuses no
-    multiply-add unasked).
+    makes more nodes leaves, the walks faster, the build 20-30% faster and the node table 38% smaller.
+    A bin's box is that of SAMPLES / BINS triangles evenly spread over it (all of them in a node of up to
+    SAMPLES). Near-equal costs go to the more even split (so that equal triangles do not make a chain).
+    Boxes are float32 (their maxima exact), areas and costs float64, each operation rounded as written (the
+    LLVM backend fuses no multiply-add unasked).
     Each (axis, node) pair is a candidate set of bins. A kernel lane per bin gathers each bin's box once;
-    then a lane per candidate set merges its bins' boxes, from
-    the last bin to the second (the areas of the boxes of bins k and after), then from the first (the
-    prefix boxes and the costs). Merged bin by bin, a box is the same as merged sample by sample in that
-    order, bit for bit (select_max keeps the last of equal values either way)."""
+    then a lane per candidate set merges its bins' boxes, from the last bin to the second (the areas of the
+    boxes of bins k and after), then from the first (the prefix boxes and the costs). Merged bin by bin, a
+    box is the same as merged sample by sample in that order, bit for bit (select_max keeps the last of
+    equal values either way)."""
     n, inf, nodes = lists.stride, float("inf"), len(b)
-    b, s, axis = np.tile(b, 3), np.tile(s, 3), np.repeat(np.arange(3), nodes)   # the candidate sets, axis by axis
+    b, s, axis = np.tile(b, 3), np.tile(s, 3), np.repeat(np.arange(3), nodes)   # candidate sets, axis by axis
     width, n_bins = len(b), np.minimum(s, BINS)
     total = int(n_bins.sum())     # the level's bins
     b, s, axis, first_bin = _opaque(b), _opaque(s), _opaque(axis), _opaque(np.cumsum(n_bins) - n_bins)
@@ -249,7 +248,8 @@ def _sah(lists: _Lists, b: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.nd
 
     def add_sample(i, *merged):   # the box of sample i (slot i * s / q of the node) merged in
         slot = dr.select(sampled, _UInt32(_UInt64(i) * _UInt64(s_j) // SAMPLES), i)
-        box = dr.gather(_ArrayXf32, lists.boxes, dr.gather(_UInt32, lists.ids, base + slot), shape=(BOX, dr.width(i)))
+        t = dr.gather(_UInt32, lists.ids, base + slot)
+        box = dr.gather(_ArrayXf32, lists.boxes, t, shape=(BOX, dr.width(t)))
         return (i + 1, *(select_max(merged[c], box[c]) for c in range(6)))
 
     end = bin_start(k + 1)
