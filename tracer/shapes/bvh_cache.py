@@ -1,7 +1,7 @@
 """Built BVHs kept for reuse, keyed by the triangles' content: in this process (the last few), and on disk
-for meshes of DISK_MIN_TRIANGLES or more, where reading one back, the key's hash included, takes about an
-eighth of building it (measured: 0.022 against 0.17 s at 249,354 triangles, 0.092 against 0.75 s at 997,534,
-medians of 3, quiet machine). The folder is
+for meshes of DISK_MIN_TRIANGLES or more, where reading one back, the key's hash included, takes about a
+tenth of building it (measured: 0.020 against 0.24 s at 249,354 triangles, 0.066 against 0.90 s at 997,534,
+medians of 3). The folder is
 `$TRACER_BVH_CACHE` if set (`off` keeps nothing on disk), else `$XDG_CACHE_HOME/tracer/bvh` (by default
 `~/.cache/tracer/bvh`); beyond CAPACITY bytes the files least recently used are removed.
 
