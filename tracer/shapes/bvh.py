@@ -271,12 +271,12 @@ class BVHKernel:
             counted = (rest[0] + dr.select(row, 1, 0), rest[1] + dr.select(tested, 1, 0)) if c else ()
             return (item, *counted, *payload, *stack)
 
-        start = dr.select(active, UInt32(self.root), none)
+        start = dr.select(Bool(active), UInt32(self.root), none)
         state = (start, *counter, *payload, *(UInt32(none) for _ in range(self.stack_size)))
         out = dr.while_loop(state, cond, body)
         return (*out[1 + c:1 + c + n], *out[1:1 + c])
 
-    def _walk_batch(self, ray: tuple, active: Bool, t_max, visit_triangle, finished, payload: tuple,
+    def _walk_batch(self, ray: tuple, active: Bool | bool, t_max, visit_triangle, finished, payload: tuple,
                     kind: str = "") -> tuple:
         """The walk of _walk over a batch of rays held in memory, by persistent lanes (Aila and Laine,
         "Understanding the efficiency of ray traversal on GPUs", 2009): BATCH_LANES lanes each take the
@@ -285,16 +285,17 @@ class BVHKernel:
         a packet's lanes are idle in _walk). A done lane takes its next ray every REFILL_PERIOD steps, so the
         fetch runs for several lanes at once. Each ray's walk, and so its result, is that of _walk.
         `ray` and `payload`: arrays of one value per ray (or one for all); returns the payload per ray,
-        unchanged where not active. `kind`: the query, for timed_walks."""
-        width = max(dr.width(x) for x in (*ray, *payload, active))
-        # each ray's payload at its start: one value for all (not copied per ray), or one per ray
-        first = tuple(x if dr.width(x) == 1 else _batch_array(x, width) for x in payload)
-        out = tuple(_batch_array(x, width) for x in payload)
-        rays = dr.compress(_batch_array(Bool(active), width))   # the rays to walk, by index
-        n = dr.width(rays)
+        unchanged where not active. `active`: a mask, or True for every ray (then there is no mask to
+        compress, and no start values to keep: every ray writes its result). `kind`: the query, for
+        timed_walks."""
+        width = max(dr.width(x) for x in (*ray, *payload, Bool(active)))
+        everyone = active is True    # no mask to compress, and every ray's result is written: nothing to keep
+        out = tuple(dr.empty(type(x), width) if everyone else _batch_array(x, width) for x in payload)
+        rays = None if everyone else dr.compress(_batch_array(Bool(active), width))   # the rays to walk, by index
+        n = width if everyone else dr.width(rays)
         if n == 0:
             return out
-        dr.eval(*ray, *first, *out)
+        dr.eval(*ray, *payload, *out)
         lanes, none, k, m = min(BATCH_LANES, n), UInt32(0xFFFFFFFF), len(ray), len(payload)
         counter = UInt32(lanes)       # the next ray to take
         count = dr.opaque(UInt32, n)  # not a literal: one kernel serves every batch size
@@ -302,10 +303,10 @@ class BVHKernel:
 
         def fetch(r: UInt32, take: Bool) -> tuple:
             """A lane's state for ray rays[r] where `take`: (item, its ray's values, ray terms, payload)."""
-            i = dr.gather(UInt32, rays, r, take)
+            i = r if rays is None else dr.gather(UInt32, rays, r, take)
             values = tuple(x if dr.width(x) == 1 else dr.gather(type(x), x, i, take) for x in ray)
             return (dr.select(take, UInt32(self.root), none), *values, *self.grid.ray_terms(values[0], values[1]),
-                    *(x if dr.width(x) == 1 else dr.gather(type(x), x, i, take) for x in first))
+                    *(x if dr.width(x) == 1 else dr.gather(type(x), x, i, take) for x in payload))
 
         def cond(step, r, *lane):
             return r < count
@@ -320,7 +321,7 @@ class BVHKernel:
             take = ((item == none) | finished(*payload)) & ((step % REFILL_PERIOD) == 0)
 
             def refill(r, *lane):
-                i = dr.gather(UInt32, rays, r, take)
+                i = r if rays is None else dr.gather(UInt32, rays, r, take)
                 for target, value in zip(out, lane[k + 3:k + 3 + m]):
                     dr.scatter(target, value, i, take)
                 r = dr.select(take, dr.scatter_inc(counter, UInt32(0), take), r)
@@ -368,7 +369,7 @@ class BVHKernel:
                     dr.select(closer, u, b1), dr.select(closer, v, b2))
 
         walk = partial(self._walk_batch, kind="closest hit") if batch else self._walk
-        return walk((o, d, Float(t_min), UInt32(skip)), Bool(True), lambda ray, t_best, *_: t_best,
+        return walk((o, d, Float(t_min), UInt32(skip)), True, lambda ray, t_best, *_: t_best,
                     visit_triangle, lambda *_: Bool(False), (Float(t_best), UInt32(prim), Float(b1), Float(b2)))
 
     def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32,
