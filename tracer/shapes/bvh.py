@@ -295,7 +295,8 @@ class BVHKernel:
         n = width if everyone else dr.width(rays)
         if n == 0:
             return out
-        dr.eval(*ray, *payload, *out)
+        first = payload               # each ray's payload at its start: read, never written (no copy)
+        dr.eval(*ray, *first, *out)
         lanes, none, k, m = min(BATCH_LANES, n), UInt32(0xFFFFFFFF), len(ray), len(payload)
         counter = UInt32(lanes)       # the next ray to take
         count = dr.opaque(UInt32, n)  # not a literal: one kernel serves every batch size
@@ -306,7 +307,7 @@ class BVHKernel:
             i = r if rays is None else dr.gather(UInt32, rays, r, take)
             values = tuple(x if dr.width(x) == 1 else dr.gather(type(x), x, i, take) for x in ray)
             return (dr.select(take, UInt32(self.root), none), *values, *self.grid.ray_terms(values[0], values[1]),
-                    *(x if dr.width(x) == 1 else dr.gather(type(x), x, i, take) for x in payload))
+                    *(x if dr.width(x) == 1 else dr.gather(type(x), x, i, take) for x in first))
 
         def cond(step, r, *lane):
             return r < count
