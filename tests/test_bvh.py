@@ -176,6 +176,12 @@ def _area(lo, hi):
     return 2 * (e[0] * e[1] + e[1] * e[2] + e[2] * e[0])
 
 
+def _sorted_along(slots, centroid):
+    """`slots` sorted along each axis, as the build's lists: by float32 centroid, ties by the next axis."""
+    c = centroid[slots]
+    return [slots[np.lexsort((slots, c[:, (a + 1) % 3], c[:, a]))] for a in range(3)]
+
+
 def _split_cost(tris, order, n_left):
     """n_l A_l + n_r A_r of the triangles `order` cut after the first n_left."""
     a, b = tris[order[:n_left]], tris[order[n_left:]]
@@ -186,7 +192,7 @@ def _split_cost(tris, order, n_left):
 @pytest.mark.parametrize("ties", [False, True])
 def test_build_splits_each_node_where_the_surface_area_heuristic_is_least(ties):
     """Every inner node: its left child is the first triangles of the node's list sorted along one axis
-    (by float32 centroid, ties by the next axis), and no split between the BINS equal-count bins along any
+    (_sorted_along), and no split between the BINS equal-count bins along any
     of the three axes has a lower SAH cost n_l A_l + n_r A_r (recomputed here in float64, by brute force
     over the candidates); also with many equal centroid coordinates. A node of at most LEAF_SIZE triangles
     is a leaf where no split costs fewer triangle tests (TRAVERSAL_COST + that cost / A), and only there.
@@ -205,8 +211,7 @@ def test_build_splits_each_node_where_the_surface_area_heuristic_is_least(ties):
         mine = np.concatenate([left, slots[tree.right[node]]])
         lo, hi = tris[mine].min(axis=(0, 1)), tris[mine].max(axis=(0, 1))
         assert np.array_equal(tree.lo[node], lo) and np.array_equal(tree.hi[node], hi)   # exact boxes
-        c = centroid[mine]
-        ordered = [mine[np.lexsort((mine, c[:, (a + 1) % 3], c[:, a]))] for a in range(3)]
+        ordered = _sorted_along(mine, centroid)
         along = [a for a in range(3) if set(ordered[a][:len(left)]) == set(left)]
         assert along, "the left child is no prefix of the node's triangles along any axis"
         axes.append(along[0])
@@ -219,9 +224,8 @@ def test_build_splits_each_node_where_the_surface_area_heuristic_is_least(ties):
             assert TRAVERSAL_COST + best / _area(lo, hi) < len(mine) * (1 + 1e-5)
     for leaf in np.flatnonzero(~tree.inner & (tree.count > 1)):   # and a leaf where splitting costs more
         mine = slots[leaf]
-        c = centroid[mine]
-        best = min(_split_cost(tris, mine[np.lexsort((mine, c[:, (a + 1) % 3], c[:, a]))], n_left)
-                   for a in range(3) for n_left in range(1, len(mine)))
+        best = min(_split_cost(tris, order, n_left) for order in _sorted_along(mine, centroid)
+                   for n_left in range(1, len(mine)))
         whole = _area(tris[mine].min(axis=(0, 1)), tris[mine].max(axis=(0, 1)))
         assert whole == 0 or TRAVERSAL_COST + best / whole >= len(mine) * (1 - 1e-5)   # no area: no ray to split
     assert len(set(axes)) == 3    # the scene is wider along x than y and z, yet nodes split along each

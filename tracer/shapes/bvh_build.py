@@ -6,15 +6,15 @@ tracing using space subdivision", The Visual Computer 6(3), 1990), binned as in 
 of SAH-based bounding volume hierarchies" (IEEE Symposium on Interactive Ray Tracing, 2007) and pbrt-v4:
 each node's triangles are cut across one of the three axes, between BINS bins of equal counts along it,
 where the expected cost of a ray's walk through the children is least over all three axes' candidates (as
-in Embree's binned builder; pbrt-v4 and Wald bin along the axis of the centroids' largest extent alone,
-which took 4 to 7% more walk steps per ray on the bench's meshes), and a node of up to LEAF_SIZE triangles
-stays a leaf where that is cheaper than splitting it. All the nodes of a level are split at once, by a few
-Dr.Jit kernels over the triangles (on the host: the LLVM backend, whatever the tracer's), with NumPy for
-the sorts and the per-level bookkeeping: in NumPy alone the levels' dozens of passes and temporaries took 3
-to 5 times as long at 0.1 to 1 million triangles (below some 1,000 the kernel launches make the build
-slower, by a few thousandths of a second). The kernels round as written
-(float32 boxes, float64 areas and costs, no fused multiply-add, min/max keeping the second of equal
-values), so the tree is the same, bit for bit, on every machine.
+in Embree's binned builder; pbrt-v4 bins along the axis of the centroids' largest extent alone, which took
+4 to 7% more walk steps per ray on the bench's meshes), and a node of up to LEAF_SIZE triangles stays a
+leaf where that is cheaper than splitting it. All the nodes of a level are split at once, by a few Dr.Jit
+kernels over the triangles (on the host: the LLVM backend, whatever the tracer's), with NumPy for the sorts
+and the per-level bookkeeping: in NumPy alone the levels' dozens of passes and temporaries took 3 to 5
+times as long at 0.1 to 1 million triangles (below some 1,000 the kernel launches make the build slower,
+by a few thousandths of a second). The kernels round as written (float32 boxes, float64 areas and costs,
+no fused multiply-add, min/max keeping the second of equal values), so the tree is the same, bit for bit,
+on every machine.
 """
 from __future__ import annotations
 
@@ -70,9 +70,9 @@ def build(vertices: np.ndarray, faces: np.ndarray | None = None) -> Tree:
 
     Each node's triangles are split by a plane across an axis (centroids rounded to float32), where the
     surface area heuristic's cost is least over the three axes (_sah); a node becomes a leaf where that
-    costs less than splitting it and it holds at most LEAF_SIZE triangles. The triangle ids
-    are sorted by centroid once per axis (NumPy); each level then splits all its nodes at once, partitioning
-    every axis's list stably into the children's parts (linear time, no sort per level), so that each list
+    costs less than splitting it and it holds at most LEAF_SIZE triangles. The triangle ids are sorted by
+    centroid once per axis (NumPy); each level then splits all its nodes at once, partitioning every axis's
+    list stably into the children's parts (linear time, no sort per level), so that each list
     stays sorted within every node. The per-level work runs as host kernels (_sah, _split) with the lists
     kept there, and only the levels' nodes come back to NumPy: a level is then a few fused passes over the
     lists instead of dozens of NumPy temporaries. Boxes are reduced over the leaves' triangles (a kernel),
