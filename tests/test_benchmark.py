@@ -63,6 +63,25 @@ def test_mesh_profile_counts_on_a_small_mesh(monkeypatch, tmp_path):
     assert 1 / mesh_profile.PACKET <= p["packet_busy"] < 1   # walks of different lengths leave lanes idle
 
 
+def test_mesh_profile_asks_both_renderers_the_same_queries(monkeypatch, tmp_path):
+    """The same random rays hit, and the same shadow rays are blocked, in both renderers (a shadow ray's
+    length once went into Mitsuba's ray time instead of its maxt: every one of its shadow rays was infinite)."""
+    import mitsuba as mi
+    import tracer
+    from tracer.geometry import SceneGeometry
+    from validation import mesh_profile
+
+    mi.set_variant("llvm_ad_rgb")
+    monkeypatch.setattr(mesh_profile, "RAYS", 4096)
+    monkeypatch.setattr(mesh_profile, "LAUNCHES", 1)
+    path = benchmark._sphere_scene(tmp_path, 500)
+    ours = mesh_profile.profile_tracer(SceneGeometry(tracer.load_scene(path)))
+    theirs = mesh_profile.profile_mitsuba(mi, mi.load_file(str(path)))
+    assert 0.2 < ours["blocked_fraction"] < ours["hit_fraction"] - 0.1     # shadow rays are short: fewer blocked
+    for fraction in ("hit_fraction", "blocked_fraction"):
+        assert abs(ours[fraction] - theirs[fraction]) < 0.005, fraction
+
+
 def test_a_renders_time_is_split_into_its_walks_and_the_rest(tmp_path):
     import tracer
     import tracer.shapes.bvh as bvh

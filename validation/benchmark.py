@@ -627,7 +627,8 @@ def mesh_markdown(rows: dict) -> list[str]:
     lines += ["", "### Where the time goes", "",
               "Ray queries alone (no shading): 2^20 rays from random points inside the meshes' bounding box in "
               "random directions, closest hit (the tracer's `closest_hit`, Mitsuba's `ray_intersect_preliminary`) "
-              "and the same rays as shadow rays of random length (`occluded`, `ray_test`); median of 5 launches. "
+              "and the same rays as shadow rays (`occluded`, `ray_test`) ending at a random point before the "
+              "box's side (both ends in the scene, as a render's shadow rays); median of 5 launches. "
               "BVH work per closest-hit ray is counted by a copy of the traversal that counts "
               "(`BVHKernel.closest_hit_work`). The tracer walks its BVH in two ways: inside the kernel that asks "
               "(each lane its own ray to the end, so a packet of lanes takes as many steps as its longest walk), or "
@@ -646,7 +647,7 @@ def mesh_markdown(rows: dict) -> list[str]:
                 out.append(f(x) if f is not None else "–")
         return " | ".join(out)
 
-    def walks(key):   # "–" where a run from before the key was measured has none
+    def number(key):   # "–" where a run from before the key was measured has none
         return lambda x: f"{x['profile'][key]:.2f}" if key in x["profile"] else "–"
 
     def rate(key):   # "–" where a run from before the key was measured has none
@@ -663,11 +664,11 @@ def mesh_markdown(rows: dict) -> list[str]:
         "| the process's peak resident memory after setup and 4 renders [MiB] | "
         + cells(lambda x: f"{x['peak_mb']:.0f}", lambda x: f"{x['peak_mb']:.0f}") + " |",
         "| rays traced per render (closest hit + shadow) | " + cells(lambda x: f"{x['rays'] / 1e6:.1f} M", None) + " |",
-        "| a render with its BVH walks timed [s] | " + cells(walks("timed_render_seconds"), None) + " |",
-        "| of which closest-hit walks [s] | " + cells(walks("closest_walk_seconds"), None) + " |",
-        "| of which shadow-ray walks [s] | " + cells(walks("shadow_walk_seconds"), None) + " |",
+        "| a render with its BVH walks timed [s] | " + cells(number("timed_render_seconds"), None) + " |",
+        "| of which closest-hit walks [s] | " + cells(number("closest_walk_seconds"), None) + " |",
+        "| of which shadow-ray walks [s] | " + cells(number("shadow_walk_seconds"), None) + " |",
         "| of which the rest: camera rays, shading, light samples, compaction between bounces [s] | "
-        + cells(walks("rest_seconds"), None) + " |",
+        + cells(number("rest_seconds"), None) + " |",
         "| closest-hit queries alone, batched walk (the renders') [rays/s] | "
         + cells(rate("closest_batch_seconds"), rate("closest_seconds")) + " |",
         "| closest-hit queries alone, walk in the caller's kernel [rays/s] | " + cells(rate("closest_seconds"), None) + " |",
@@ -679,6 +680,7 @@ def mesh_markdown(rows: dict) -> list[str]:
         + cells(lambda x: f"{x['profile']['packet_busy']:.0%}" if "packet_busy" in x["profile"] else "–", None) + " |",
         "| random rays that hit | " + cells(lambda x: f"{x['profile']['hit_fraction']:.2f}",
                                             lambda x: f"{x['profile']['hit_fraction']:.2f}") + " |",
+        "| random shadow rays blocked | " + cells(number("blocked_fraction"), number("blocked_fraction")) + " |",
         "| BVH node rows (4-wide) visited per closest-hit ray, revisits included (mean, p90) | "
         + cells(lambda x: f"{x['profile']['steps_mean']:.0f}, {x['profile']['steps_p90']:.0f}", None) + " |",
         "| triangles tested per closest-hit ray (mean, p90) | "

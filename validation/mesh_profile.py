@@ -6,8 +6,11 @@ busiest lane's when each lane walks its own ray to its end (the in-kernel walk: 
 its longest walk ends), which the batched walk (BVHKernel._walk_batch) recovers.
 
 The rays start uniformly inside the scene's bounding box, in uniformly random directions; shadow rays are
-the same rays cut to a length uniform in (0, half the box's diagonal). Each query is launched LAUNCHES
-times after a warm-up launch (which compiles it); the median counts.
+the same rays cut to a length uniform in (0, the distance at which they leave the box): both ends in the
+scene, as a render's shadow rays (the tracer leaves out of its shadow rays the walls that such a segment
+never crosses). Each query is launched LAUNCHES times after a warm-up launch (which compiles it); the median
+counts. Both renderers' fractions of rays that hit and of shadow rays blocked are kept: equal fractions show
+that both answered the same queries.
 """
 from __future__ import annotations
 
@@ -28,7 +31,9 @@ def random_rays(lo: np.ndarray, hi: np.ndarray, n: int = RAYS, seed: int = 0):
     o = lo + (hi - lo) * rng.uniform(0.02, 0.98, (n, 3))
     d = rng.normal(size=(n, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    dist = rng.uniform(0, 0.5 * np.linalg.norm(hi - lo), n)
+    with np.errstate(divide="ignore"):
+        exit = np.min(np.abs(np.where(d > 0, hi - o, lo - o)) / np.abs(d), axis=1)   # where the ray leaves the box
+    dist = rng.uniform(0, 1, n) * exit
     return o.astype(np.float32), d.astype(np.float32), dist.astype(np.float32)
 
 
@@ -68,6 +73,7 @@ def profile_tracer(geometry) -> dict:
         out.update(closest_batch_seconds=_timed(closest), shadow_batch_seconds=_timed(shadow))
     hit = closest()[1]
     out["hit_fraction"] = float(np.mean(hit.numpy() != NO_PRIM))
+    out["blocked_fraction"] = float(np.mean(shadow()[0].numpy()))
     if geometry.meshes.bvh is not None:
         start = time.perf_counter()
         layout(geometry.meshes.tri_vertices)
@@ -107,7 +113,8 @@ def profile_mitsuba(mi, scene) -> dict:
         mesh_lo, mesh_hi = np.array(bbox.min), np.array(bbox.max)
     o, d, dist = random_rays(mesh_lo, mesh_hi)
     origin, direction = mi.Point3f(*o.T), mi.Vector3f(*d.T)
-    ray, short = mi.Ray3f(origin, direction), mi.Ray3f(origin, direction, mi.Float(dist))
+    ray = mi.Ray3f(origin, direction)
+    short = mi.Ray3f(ray, mi.Float(dist))   # Ray3f(o, d, x) would take x as the time, leaving maxt infinite
 
     def closest():
         pi = scene.ray_intersect_preliminary(ray)
@@ -115,4 +122,5 @@ def profile_mitsuba(mi, scene) -> dict:
 
     return {"rays": RAYS, "closest_seconds": _timed(closest),
             "shadow_seconds": _timed(lambda: (scene.ray_test(short),)),
-            "hit_fraction": float(np.mean(np.isfinite(np.array(closest()[0]))))}
+            "hit_fraction": float(np.mean(np.isfinite(np.array(closest()[0])))),
+            "blocked_fraction": float(np.mean(np.array(scene.ray_test(short))))}
