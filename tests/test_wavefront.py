@@ -56,6 +56,33 @@ def test_batched_shadow_rays_are_the_walks(kernel_and_rays):
     assert len(nothing) == N and not nothing.any()
 
 
+def test_rays_that_enter_no_box_of_the_root_row_stay_out_of_the_batched_walk(kernel_and_rays, monkeypatch):
+    """The root row's test in the caller's kernel (_enters_root) is the walk's first step: rays away from
+    the triangles, or stopped before them, are left out of the batch, and every result stays the walk's."""
+    import drjit as dr
+
+    import tracer.shapes.bvh as bvh
+
+    kernel, _, _, rng = kernel_and_rays
+    o = np.concatenate([rng.uniform(2, 3, (N, 3)), rng.uniform(2, 3, (N, 3))])   # beyond the triangles' box
+    d = np.concatenate([o[:N] / np.linalg.norm(o[:N], axis=1, keepdims=True),     # away from it,
+                        -o[N:] / np.linalg.norm(o[N:], axis=1, keepdims=True)])   # and towards its middle
+    o, d = Array3f(*o.T), Array3f(*d.T)
+    t_best = Float(np.concatenate([np.full(N, np.inf), np.where(rng.uniform(size=N) < 0.5, 0.5, np.inf)]))
+    enters = kernel._enters_root(o, d, t_best).numpy()
+    assert not enters[:N].any() and 0.3 < enters[N:].mean() < 0.7    # the stopped half enters nothing
+    walked = []
+    compress = dr.compress
+    monkeypatch.setattr(bvh.dr, "compress", lambda m: walked.append(dr.count(m)) or compress(m))
+    prim, b = UInt32(np.full(2 * N, NO_PRIM, np.uint32)), Float(np.zeros(2 * N))
+    batch = kernel.closest_hit(o, d, 0.0, t_best, prim, b, b, UInt32(NO_PRIM), batch=True)
+    assert walked == [enters.sum()]
+    walk = kernel.closest_hit(o, d, 0.0, t_best, prim, b, b, UInt32(NO_PRIM))
+    assert np.isfinite(walk[0].numpy()[N:]).mean() > 0.2
+    for a, c in zip(walk, batch):
+        np.testing.assert_array_equal(a.numpy(), c.numpy())
+
+
 def _paths(geo, scene, trace):
     """Radiance and rays of 16 x 16 pixels at 4 spp traced by `trace` (the integrator's loop)."""
     sample = UInt32(np.arange(16 * 16 * 4, dtype=np.uint32))

@@ -178,6 +178,7 @@ class BVHKernel:
         self.nodes = UInt32(aligned(tables.nodes))
         # the root row's link: its full slots are those with a link
         self.root = int((tables.nodes[0, 3::4] != 0) @ (1 << np.arange(WIDTH)))
+        self.root_words = [int(w) for w in tables.nodes[0]]
         self.stack_size = tables.stack_size
         tris = aligned_zeros((len(frames), 12), HOST_FLOAT)   # rows (v0, prim, v1 - v0, 0, v2 - v0, 0)
         tris.reshape(-1, 3, 4)[:, :, :3] = np.take(frames, tables.order, axis=0)
@@ -200,6 +201,18 @@ class BVHKernel:
         t_near = select_max(select_max(near.x, near.y), near.z)
         t_far = select_min(select_min(far.x, far.y), far.z)
         return (t_near <= t_far) & (t_far >= 0) & (t_near <= t_max), t_near, x[4 * k + 3]
+
+    def _enters_root(self, o: Array3f, d: Array3f, t_max: Float) -> Bool:
+        """Whether o + t d, 0 <= t <= t_max, enters a box of the root row's children: the walk's first step,
+        in the caller's kernel (the row's words as constants), so that the rays that enter none of them (most
+        of a render's, which end on the walls and lights around the meshes) stay out of a batched walk."""
+        slope, offset = self.grid.ray_terms(o, d)
+        x = [UInt32(w) for w in self.root_words]
+        enters = Bool(False)
+        for k in range(WIDTH):
+            if self.root & (1 << k):
+                enters |= self._child(x, k, slope, offset, t_max)[0]
+        return enters
 
     def _step(self, item: UInt32, stack: tuple, payload: tuple, slope: Array3f, offset: Array3f,
               t_end, visit_triangle, finished) -> tuple[UInt32, tuple, tuple, Bool, Bool]:
@@ -289,12 +302,14 @@ class BVHKernel:
         compress, and no start values to keep: every ray writes its result). `kind`: the query, for
         timed_walks."""
         width = max(dr.width(x) for x in (*ray, *payload, Bool(active)))
-        everyone = active is True    # no mask to compress, and every ray's result is written: nothing to keep
-        out = tuple(dr.empty(type(x), width) if everyone else _batch_array(x, width) for x in payload)
-        rays = None if everyone else dr.compress(_batch_array(Bool(active), width))   # the rays to walk, by index
+        everyone = active is True    # no mask to compress
+        out = tuple(dr.empty(type(x), width) for x in payload)   # written where active
+        if not everyone:
+            active = _batch_array(Bool(active), width)   # evaluated once: the walk's rays and the results' mask
+        rays = None if everyone else dr.compress(active)    # the rays to walk, by index
         n = width if everyone else dr.width(rays)
         if n == 0:
-            return out
+            return tuple(_batch_array(x, width) for x in payload)
         first = payload               # each ray's payload at its start: read, never written (no copy)
         dr.eval(*ray, *first, *out)
         lanes, none, k, m = min(BATCH_LANES, n), UInt32(0xFFFFFFFF), len(ray), len(payload)
@@ -344,7 +359,7 @@ class BVHKernel:
             dr.eval(*out)
             dr.sync_thread()
             _walk_seconds[kind] = _walk_seconds.get(kind, 0.0) + time.perf_counter() - start
-        return out
+        return out if everyone else tuple(dr.select(active, x, y) for x, y in zip(out, first))
 
     def _triangle(self, slot, o, d, t_min, t_max, skip, target):
         """The triangle in `slot`: (t, prim, b1, b2), t = inf if o + t d misses it in (t_min, t_max) or it is
@@ -370,7 +385,8 @@ class BVHKernel:
                     dr.select(closer, u, b1), dr.select(closer, v, b2))
 
         walk = partial(self._walk_batch, kind="closest hit") if batch else self._walk
-        return walk((o, d, Float(t_min), UInt32(skip)), True, lambda ray, t_best, *_: t_best,
+        active = self._enters_root(o, d, Float(t_best)) if batch else True
+        return walk((o, d, Float(t_min), UInt32(skip)), active, lambda ray, t_best, *_: t_best,
                     visit_triangle, lambda *_: Bool(False), (Float(t_best), UInt32(prim), Float(b1), Float(b2)))
 
     def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32,
@@ -382,6 +398,8 @@ class BVHKernel:
             return (blocked | (self._triangle(slot, o, d, 0.0, dist, skip, target)[0] < dist),)
 
         walk = partial(self._walk_batch, kind="shadow") if batch else self._walk
+        if batch:
+            active = Bool(active) & self._enters_root(o, d, Float(dist))
         return walk((o, d, Float(dist), UInt32(skip), UInt32(target)), Bool(active), lambda ray, _: ray[2],
                     visit_triangle, lambda blocked: blocked, (Bool(False),))[0]
 
