@@ -298,9 +298,9 @@ class BVHKernel:
         a packet's lanes are idle in _walk). A done lane takes its next ray every REFILL_PERIOD steps, so the
         fetch runs for several lanes at once. Each ray's walk, and so its result, is that of _walk.
         `ray` and `payload`: arrays of one value per ray (or one for all); returns the payload per ray,
-        unchanged where not active. `active`: a mask, or True for every ray (then there is no mask to
-        compress, and no start values to keep: every ray writes its result). `kind`: the query, for
-        timed_walks."""
+        unchanged where not active (the walked rays' results selected against the start values where they
+        are read next, not copied). `active`: a mask, or True for every ray (no mask to compress). `kind`:
+        the query, for timed_walks."""
         width = max(dr.width(x) for x in (*ray, *payload, Bool(active)))
         everyone = active is True    # no mask to compress
         out = tuple(dr.empty(type(x), width) for x in payload)   # written where active
