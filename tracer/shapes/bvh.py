@@ -230,7 +230,18 @@ class BVHKernel:
         item = dr.select(more, item + 7, item)
         inner = (item < LEAF_BIT) & ~finished(*payload)
         x = dr.gather(ArrayXu, self.nodes, item >> WIDTH, inner, shape=(4 * WIDTH, dr.width(item)))
-        t_end = t_end(*payload)
+        entered, near, push, pushed = self._row(x, item, inner, slope, offset, t_end(*payload))
+        pushed = (pushed, *stack[:-1])
+        item, stack = self._pop(inner & ~entered, item, stack)
+        item = dr.select(entered, near, item)
+        stack = tuple(dr.select(push, p, s) for p, s in zip(pushed, stack))
+        return item, stack, payload, at_leaf, inner
+
+    def _row(self, x: list[UInt32], item: UInt32, inner: Bool, slope: Array3f, offset: Array3f,
+             t_end: Float) -> tuple[Bool, UInt32, Bool, UInt32]:
+        """The test of a row's words x, reached by link `item`, of its child slots still to visit (the link's
+        mask), where `inner`: (whether the ray enters one, the nearest one's link, whether it enters
+        others, and what then goes on the stack: the one other, or the row with those slots left)."""
         t_best, near, other, near_bit, hits = Float(INF), UInt32(0), UInt32(0), UInt32(0), UInt32(0)
         for k in range(WIDTH):   # `other`: with two slots entered, the farther one's link
             hit, t, link = self._child(x, k, slope, offset, t_end)
@@ -241,14 +252,8 @@ class BVHKernel:
             t_best, near, near_bit = (dr.select(closer, t, t_best), dr.select(closer, link, near),
                                       dr.select(closer, 1 << k, near_bit))
         rest_bits = hits & ~near_bit
-        push = rest_bits != 0
         one = (rest_bits & (rest_bits - 1)) == 0   # one other slot entered: pushed itself, else the row
-        pushed = (dr.select(one, other, (item & (0xFFFFFFFF ^ MASK)) | rest_bits), *stack[:-1])
-        entered = hits != 0
-        item, stack = self._pop(inner & ~entered, item, stack)
-        item = dr.select(entered, near, item)
-        stack = tuple(dr.select(push, p, s) for p, s in zip(pushed, stack))
-        return item, stack, payload, at_leaf, inner
+        return hits != 0, near, rest_bits != 0, dr.select(one, other, (item & (0xFFFFFFFF ^ MASK)) | rest_bits)
 
     @staticmethod
     def _pop(pop: Bool, item: UInt32, stack: tuple) -> tuple[UInt32, tuple]:
