@@ -207,12 +207,7 @@ class BVHKernel:
         in the caller's kernel (the row's words as constants), so that the rays that enter none of them (most
         of a render's, which end on the walls and lights around the meshes) stay out of a batched walk."""
         slope, offset = self.grid.ray_terms(o, d)
-        x = [UInt32(w) for w in self.root_words]
-        enters = Bool(False)
-        for k in range(WIDTH):
-            if self.root & (1 << k):
-                enters |= self._child(x, k, slope, offset, t_max)[0]
-        return enters
+        return self._row([UInt32(w) for w in self.root_words], UInt32(self.root), Bool(True), slope, offset, t_max)[0]
 
     def _step(self, item: UInt32, stack: tuple, payload: tuple, slope: Array3f, offset: Array3f,
               t_end, visit_triangle, finished) -> tuple[UInt32, tuple, tuple, Bool, Bool]:
