@@ -14,8 +14,6 @@ from pathlib import Path
 
 import numpy as np
 import OpenEXR
-from PIL import Image
-from PIL.PngImagePlugin import PngInfo
 
 
 from .errors import OutputError, UserError
@@ -142,7 +140,10 @@ def read_exr_rgb(path: Path) -> np.ndarray:
 
 def write_png(path: str | Path, image: np.ndarray, metadata: dict[str, str] | None = None) -> None:
     """sRGB, 8 bits per channel, `metadata` as text chunks; encoded band by band (PNG_ROWS) to bound the
-    encoding's memory."""
+    encoding's memory. (Pillow imported here: a render that writes no PNG does not pay its import.)"""
+    from PIL import Image
+    from PIL.PngImagePlugin import PngInfo
+
     check_image(image, str(path))
     pixels = np.empty(image.shape, dtype=np.uint8)
     for top in range(0, image.shape[0], PNG_ROWS):
