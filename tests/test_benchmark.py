@@ -98,6 +98,7 @@ def test_a_renders_time_is_split_into_its_walks_and_the_rest(tmp_path):
         assert p["closest_walk_seconds"] == p["shadow_walk_seconds"] == 0
         return
     assert p["closest_walk_seconds"] > 0 and p["shadow_walk_seconds"] > 0
+    assert 0 < p["closest_walked_fraction"] <= 1 and 0 < p["shadow_walked_fraction"] <= 1
     assert 0 < p["rest_seconds"] < p["timed_render_seconds"]
     assert bvh._walk_seconds is None            # timing is off again after the render
 
@@ -120,3 +121,34 @@ def test_mesh_rows_pool_two_processes_renders():
     benchmark._pool(first, {"seconds": [2.0, 2.1, 2.2], "median": 2.1, "setup_seconds": 2.0})
     assert first["seconds"] == [3.0, 3.2, 3.1, 2.0, 2.1, 2.2] and first["median"] == 2.6
     assert first["setup_seconds"] == 1.5 and first["setup_runs"] == [1.0, 2.0] and "profile" in first
+
+
+def test_a_renders_own_rays_are_replayed_through_both_renderers(tmp_path):
+    """The rays one render asks about, recorded and replayed through the tracer's queries and Mitsuba's: as
+    many as the render traced, and the same shadow rays blocked on both sides."""
+    import mitsuba as mi
+    import tracer
+    from tracer.geometry import SceneGeometry, recorded_queries
+    from tracer.rendering import render
+    from validation import mesh_profile
+
+    mi.set_variant("llvm_ad_rgb")
+    path = benchmark._sphere_scene(tmp_path, 500)
+    scene = tracer.load_scene(path, width=32, height=32)
+    geo = SceneGeometry(scene)
+    traced = []
+    once = lambda: traced.append(render(scene, "path", spp=4, max_depth=4, geometry=geo).rays)   # noqa: E731
+    with recorded_queries() as queries:
+        once()
+    assert [(q, len(o)) for q, o, _, _ in queries[:2]] == [("closest hit", 32 * 32 * 4), ("shadow", len(queries[1][1]))]
+    recorded = sum(len(o) for _, o, _, _ in queries)   # shadow rays are traced only towards a light's front
+    assert 0.5 * traced[0] < recorded <= traced[0]
+    p = mesh_profile.profile_render_rays(geo, once, mi.load_file(str(path), width=32, height=32))
+    assert p["replayed_rays"] == recorded
+    for key in ("replay_closest_seconds", "replay_shadow_seconds"):
+        assert p[key] > 0 and p[key + "_mitsuba"] > 0
+    assert 0 < p["replay_blocked_fraction"] < 1
+    assert abs(p["replay_blocked_fraction"] - p["replay_blocked_fraction_mitsuba"]) < 0.01
+    with recorded_queries() as queries:   # nothing is kept outside a batched render
+        geo.closest_hit(*(tracer.jit.Array3f(0.0, 0.0, 0.0),) * 2, 0.0, 1.0, tracer.jit.UInt32(0))
+    assert queries == []

@@ -57,6 +57,32 @@ def goes_bounce_by_bounce(has_bvh: bool) -> bool:
     return has_bvh and BATCHED_WALKS
 
 
+_recorded: list | None = None    # see recorded_queries
+
+
+@contextmanager
+def recorded_queries():
+    """Within: each batched ray query (SceneGeometry.closest_hit and occluded within batched()) keeps its
+    rays in the list yielded, as ("closest hit" or "shadow", origins (n, 3), directions (n, 3), the
+    farthest distance each may reach (n,)) NumPy arrays, shadow rays where active. For validate bench,
+    which replays a render's own rays through both renderers' ray queries."""
+    global _recorded
+    _recorded = []
+    try:
+        yield _recorded
+    finally:
+        _recorded = None
+
+
+def _record(query: str, o: Array3f, d: Array3f, t_max, active=True) -> None:
+    o, d, t_max, active = Array3f(o), Array3f(d), Float(t_max), Bool(active)
+    dr.eval(o, d, t_max, active)
+    n = max(dr.width(o), dr.width(d), dr.width(t_max), dr.width(active))
+    keep = np.broadcast_to(active.numpy(), (n,))
+    rows = [np.broadcast_to(np.stack([c.numpy() for c in v], 1), (n, 3))[keep] for v in (o, d)]
+    _recorded.append((query, *rows, np.broadcast_to(t_max.numpy(), (n,))[keep]))
+
+
 class SceneGeometry:
     """`bvh_threshold`: triangles above which they go into a BVH; `material_kinds`: the material codes the
     kernel carries (materials.DIFFUSE, CONDUCTOR, ...; default: those of the scene's materials)."""
@@ -185,6 +211,8 @@ class SceneGeometry:
 
     def closest_hit(self, o: Array3f, d: Array3f, t_min, t_max, skip: UInt32) -> Hit:
         """Nearest hit along o + t d, never on primitive `skip` (the one the ray leaves)."""
+        if self.batch and _recorded is not None:
+            _record("closest hit", o, d, t_max)
         t_best, prim = Float(t_max), UInt32(NO_PRIM)
         b1, b2 = Float(0), Float(0)
         for i, t, u, v in self._candidates(o, d, t_min, skip):
@@ -213,6 +241,8 @@ class SceneGeometry:
                  active: Bool = True) -> Bool:
         """Whether anything but `skip` and `target` lies on the segment o + t d, 0 < t < dist. Lanes that
         are not active may answer either way; only the BVH skips work for them."""
+        if self.batch and _recorded is not None:
+            _record("shadow", o, d, dist, active)
         blocked = Bool(False)
         for i, t, _, _ in self._candidates(o, d, 0.0, skip, target, self.occluders):
             blocked |= t < dist

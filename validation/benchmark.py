@@ -84,12 +84,17 @@ def _child(job: dict) -> dict:
            "rays": runs[-1][3], "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
     out.update(split)
     if job.get("profile"):
-        from .mesh_profile import profile_mitsuba, profile_render, profile_tracer
+        from .mesh_profile import profile_mitsuba, profile_render, profile_render_rays, profile_tracer
 
         if job["renderer"] == "mitsuba":
             out["profile"] = profile_mitsuba(mi, scene)
         else:
-            out["profile"] = profile_tracer(geometry) | profile_render(lambda: run(REPEATS + 1)[1])
+            from .mitsuba_render import mitsuba
+
+            render_once = lambda: run(REPEATS + 1)[1]   # noqa: E731
+            out["profile"] = (profile_tracer(geometry) | profile_render(render_once)
+                              | profile_render_rays(geometry, render_once,
+                                                    mitsuba().load_file(job["scene"], **job["params"])))
             out["setup_cached_seconds"] = _setup_from_disk_cache(job)
     if job.get("save_image"):
         np.save(job["save_image"], runs[-1][0])
@@ -647,6 +652,13 @@ def mesh_markdown(rows: dict) -> list[str]:
                 out.append(f(x) if f is not None else "–")
         return " | ".join(out)
 
+    def replayed(key: str, fmt: str) -> str:   # the tracer's value and Mitsuba's (measured in its process)
+        out = []
+        for row in rows.values():
+            p = row["tracer"]["profile"]
+            out += [format(p[k], fmt) if k in p else "–" for k in (key, key + "_mitsuba")]
+        return " | ".join(out)
+
     def number(key):   # "–" where a run from before the key was measured has none
         return lambda x: f"{x['profile'][key]:.2f}" if key in x["profile"] else "–"
 
@@ -669,6 +681,13 @@ def mesh_markdown(rows: dict) -> list[str]:
         "| of which shadow-ray walks [s] | " + cells(number("shadow_walk_seconds"), None) + " |",
         "| of which the rest: camera rays, shading, light samples, compaction between bounces [s] | "
         + cells(number("rest_seconds"), None) + " |",
+        "| a render's rays walked through the BVH, of those asked (closest hit, shadow; the others enter no "
+        "child box of its root row) | " + cells(lambda x: f"{x['profile']['closest_walked_fraction']:.0%}, "
+                                                  f"{x['profile']['shadow_walked_fraction']:.0%}"
+                                        if "shadow_walked_fraction" in x["profile"] else "–", None) + " |",
+        "| a render's own rays replayed: closest-hit queries [s] | " + replayed("replay_closest_seconds", ".2f") + " |",
+        "| a render's own rays replayed: shadow queries [s] | " + replayed("replay_shadow_seconds", ".2f") + " |",
+        "| a render's own rays replayed: shadow rays blocked | " + replayed("replay_blocked_fraction", ".3f") + " |",
         "| closest-hit queries alone, batched walk (the renders') [rays/s] | "
         + cells(rate("closest_batch_seconds"), rate("closest_seconds")) + " |",
         "| closest-hit queries alone, walk in the caller's kernel [rays/s] | " + cells(rate("closest_seconds"), None) + " |",

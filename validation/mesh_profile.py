@@ -21,6 +21,8 @@ import numpy as np
 
 RAYS = 1 << 20
 LAUNCHES = 5
+REPLAYS = 3            # timed replays of a render's rays
+REPLAY_OFFSET = 1e-4   # a replayed ray's start past its recorded origin, and its end short of its own, in extents
 PACKET = 16        # lanes of an AVX-512 packet of 32-bit values, as Dr.Jit's LLVM backend runs a kernel
 
 
@@ -90,14 +92,83 @@ def profile_tracer(geometry) -> dict:
 def profile_render(render_once) -> dict:
     """Where one render's time goes: render_once() -> its seconds, run with the batched BVH walks timed
     (tracer.shapes.bvh.timed_walks: each walk waits for its inputs and its end, so this render takes a
-    little longer than an untimed one). Returns its seconds and those of the closest-hit and shadow walks."""
+    little longer than an untimed one). Returns its seconds and those of the closest-hit and shadow walks,
+    and the fraction of each query's rays that were walked (the others enter no child box of the BVH's
+    root row)."""
     from tracer.shapes.bvh import timed_walks
 
     with timed_walks() as walks:
         seconds = render_once()
     closest, shadow = walks.get("closest hit", 0.0), walks.get("shadow", 0.0)
-    return {"timed_render_seconds": seconds, "closest_walk_seconds": closest, "shadow_walk_seconds": shadow,
-            "rest_seconds": seconds - closest - shadow}
+    out = {"timed_render_seconds": seconds, "closest_walk_seconds": closest, "shadow_walk_seconds": shadow,
+           "rest_seconds": seconds - closest - shadow}
+    for query, key in (("closest hit", "closest"), ("shadow", "shadow")):
+        if walks.get(f"{query}: rays"):
+            out[f"{key}_walked_fraction"] = walks[f"{query}: walked"] / walks[f"{query}: rays"]
+    return out
+
+
+def profile_render_rays(geometry, render_once, mitsuba_scene) -> dict:
+    """One render's own rays replayed through both renderers' queries: the tracer's (SceneGeometry's
+    closest_hit and occluded, batched as in a render) and Mitsuba's (Embree's) `ray_intersect_preliminary`
+    and `ray_test` on `mitsuba_scene`, the same scene loaded by Mitsuba; seconds summed over the render's
+    batches, the median of REPLAYS replays after a warm-up. Each ray starts REPLAY_OFFSET (of the
+    scene's extent) along its direction from its recorded origin and stops as far short of its end, on
+    both sides (Mitsuba cannot skip the primitive a ray leaves, as the tracer does). Also each renderer's
+    fraction of the shadow rays blocked (equal fractions: the same queries)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from tracer.geometry import recorded_queries
+    from tracer.jit import NO_PRIM, Array3f, Float, UInt32
+
+    with recorded_queries() as queries:
+        render_once()
+    eps = REPLAY_OFFSET * geometry.scene.extent()
+    batches = [(q, o + eps * d, d, np.maximum(t - 2 * eps, 0)) for q, o, d, t in queries if len(o)]
+    ours = [(q, Array3f(*o.T), Array3f(*d.T), Float(t)) for q, o, d, t in batches]
+    theirs = [(q, mi.Ray3f(mi.Ray3f(mi.Point3f(*o.T), mi.Vector3f(*d.T)), mi.Float(np.minimum(t, 3e38))))
+              for q, o, d, t in batches]
+    none = UInt32(NO_PRIM)
+
+    def ours_query(q, o, d, t):
+        if q == "closest hit":
+            return (geometry.closest_hit(o, d, 0.0, t, none).prim,)
+        return (geometry.occluded(o, d, t, none, none),)
+
+    def theirs_query(q, ray):
+        return (mitsuba_scene.ray_intersect_preliminary(ray).t,) if q == "closest hit" else \
+            (mitsuba_scene.ray_test(ray),)
+
+    out = {"replayed_rays": int(sum(len(o) for _, o, _, _ in batches))}
+    with geometry.batched():
+        for query, key in (("closest hit", "closest"), ("shadow", "shadow")):
+            mine = [x for x in ours if x[0] == query]
+            out[f"replay_{key}_seconds"] = _timed_all([lambda x=x: ours_query(*x) for x in mine])
+            out[f"replay_{key}_seconds_mitsuba"] = _timed_all(
+                [lambda x=x: theirs_query(*x) for x in theirs if x[0] == query])
+        shadow = [x for x in ours if x[0] == "shadow"]
+        if shadow:
+            out["replay_blocked_fraction"] = float(np.mean(np.concatenate([ours_query(*x)[0].numpy() for x in shadow])))
+            out["replay_blocked_fraction_mitsuba"] = float(np.mean(np.concatenate(
+                [np.array(theirs_query(*x)[0]) for x in theirs if x[0] == "shadow"])))
+    dr.sync_thread()
+    return out
+
+
+def _timed_all(launches: list) -> float:
+    """Median seconds of REPLAYS runs of every launch in turn (each evaluated before the next), after a
+    warm-up run."""
+    import drjit as dr
+
+    seconds = []
+    for k in range(REPLAYS + 1):
+        start = time.perf_counter()
+        for launch in launches:
+            dr.eval(*launch())
+        dr.sync_thread()
+        seconds.append(time.perf_counter() - start)
+    return statistics.median(seconds[1:])
 
 
 def profile_mitsuba(mi, scene) -> dict:

@@ -308,6 +308,9 @@ class BVHKernel:
             active = _batch_array(Bool(active), width)   # evaluated once: the walk's rays and the results' mask
         rays = None if everyone else dr.compress(active)    # the rays to walk, by index
         n = width if everyone else dr.width(rays)
+        if _walk_seconds is not None:
+            for key, count in ((f"{kind}: rays", width), (f"{kind}: walked", n)):
+                _walk_seconds[key] = _walk_seconds.get(key, 0) + count
         if n == 0:
             return tuple(_batch_array(x, width) for x in payload)
         first = payload               # each ray's payload at its start: read, never written (no copy)
@@ -418,7 +421,8 @@ class BVHKernel:
 @contextmanager
 def timed_walks():
     """Within: each batched walk waits for its inputs, then for its own end, and adds its seconds to the dict
-    yielded, by query ("closest hit", "shadow"). For validate bench's account of a render's time; the
+    yielded, by query ("closest hit", "shadow"), and the rays it was asked about and those it walked
+    ("closest hit: rays", "closest hit: walked", ...). For validate bench's account of a render's time; the
     waits keep the next kernels from overlapping a walk, so a timed render takes a little longer."""
     global _walk_seconds
     _walk_seconds = {}
