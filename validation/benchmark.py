@@ -640,7 +640,12 @@ def mesh_markdown(rows: dict) -> list[str]:
               "batched, over rays in memory, by persistent lanes that each take the next ray when theirs is done "
               "(`BVHKernel._walk_batch`); renders use the batched walk, on the LLVM backend. One more render "
               "times its walks (`tracer.shapes.bvh.timed_walks`: each walk waits for its inputs and its end, so "
-              "that render takes a little longer than the others).",
+              "that render takes a little longer than the others). Another render's own rays are recorded "
+              "(`tracer.geometry.recorded_queries`) and replayed through both renderers' queries, the whole "
+              "scene's (the tracer's `SceneGeometry.closest_hit` and `occluded`, batched as in a render; Mitsuba's "
+              "`ray_intersect_preliminary` and `ray_test`, in the tracer's process), each ray started and stopped "
+              "1e-4 of the scene's extent inside its ends (Mitsuba cannot skip the primitive a ray leaves); "
+              "seconds summed over the render's batches, median of 3 replays.",
               ""]
     header = "| | " + " | ".join(f"tracer, {row['triangles']:,} | Mitsuba, {row['triangles']:,}" for row in rows.values()) + " |"
     lines += [header, "|---|" + "---:|" * (2 * len(rows))]
