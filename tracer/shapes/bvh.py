@@ -289,7 +289,7 @@ class BVHKernel:
         out = dr.while_loop(state, cond, body)
         return (*out[1 + c:1 + c + n], *out[1:1 + c])
 
-    def _walk_batch(self, ray: tuple, active: Bool | bool, t_max, visit_triangle, finished, payload: tuple,
+    def _walk_batch(self, ray: tuple, active: Bool, t_max, visit_triangle, finished, payload: tuple,
                     kind: str = "") -> tuple:
         """The walk of _walk over a batch of rays held in memory, by persistent lanes (Aila and Laine,
         "Understanding the efficiency of ray traversal on GPUs", 2009): BATCH_LANES lanes each take the
@@ -299,15 +299,12 @@ class BVHKernel:
         fetch runs for several lanes at once. Each ray's walk, and so its result, is that of _walk.
         `ray` and `payload`: arrays of one value per ray (or one for all); returns the payload per ray,
         unchanged where not active (the walked rays' results selected against the start values where they
-        are read next, not copied). `active`: a mask, or True for every ray (no mask to compress). `kind`:
-        the query, for timed_walks."""
-        width = max(dr.width(x) for x in (*ray, *payload, Bool(active)))
-        everyone = active is True    # no mask to compress
+        are read next, not copied). `kind`: the query, for timed_walks."""
+        width = max(dr.width(x) for x in (*ray, *payload, active))
         out = tuple(dr.empty(type(x), width) for x in payload)   # written where active
-        if not everyone:
-            active = _batch_array(Bool(active), width)   # evaluated once: the walk's rays and the results' mask
-        rays = None if everyone else dr.compress(active)    # the rays to walk, by index
-        n = width if everyone else dr.width(rays)
+        active = _batch_array(active, width)   # evaluated once: the walk's rays and the results' mask
+        rays = dr.compress(active)             # the rays to walk, by index
+        n = dr.width(rays)
         if _walk_seconds is not None:
             for key, count in ((f"{kind}: rays", width), (f"{kind}: walked", n)):
                 _walk_seconds[key] = _walk_seconds.get(key, 0) + count
@@ -322,7 +319,7 @@ class BVHKernel:
 
         def fetch(r: UInt32, take: Bool) -> tuple:
             """A lane's state for ray rays[r] where `take`: (item, its ray's values, ray terms, payload)."""
-            i = r if rays is None else dr.gather(UInt32, rays, r, take)
+            i = dr.gather(UInt32, rays, r, take)
             values = tuple(x if dr.width(x) == 1 else dr.gather(type(x), x, i, take) for x in ray)
             return (dr.select(take, UInt32(self.root), none), *values, *self.grid.ray_terms(values[0], values[1]),
                     *(x if dr.width(x) == 1 else dr.gather(type(x), x, i, take) for x in first))
@@ -340,7 +337,7 @@ class BVHKernel:
             take = ((item == none) | finished(*payload)) & ((step % REFILL_PERIOD) == 0)
 
             def refill(r, *lane):
-                i = r if rays is None else dr.gather(UInt32, rays, r, take)
+                i = dr.gather(UInt32, rays, r, take)
                 for target, value in zip(out, lane[k + 3:k + 3 + m]):
                     dr.scatter(target, value, i, take)
                 r = dr.select(take, dr.scatter_inc(counter, UInt32(0), take), r)
@@ -362,7 +359,7 @@ class BVHKernel:
             dr.eval(*out)
             dr.sync_thread()
             _walk_seconds[kind] = _walk_seconds.get(kind, 0.0) + time.perf_counter() - start
-        return out if everyone else tuple(dr.select(active, x, y) for x, y in zip(out, first))
+        return tuple(dr.select(active, x, y) for x, y in zip(out, first))
 
     def _triangle(self, slot, o, d, t_min, t_max, skip, target):
         """The triangle in `slot`: (t, prim, b1, b2), t = inf if o + t d misses it in (t_min, t_max) or it is
@@ -388,7 +385,7 @@ class BVHKernel:
                     dr.select(closer, u, b1), dr.select(closer, v, b2))
 
         walk = partial(self._walk_batch, kind="closest hit") if batch else self._walk
-        active = self._enters_root(o, d, Float(t_best)) if batch else True
+        active = self._enters_root(o, d, Float(t_best)) if batch else Bool(True)
         return walk((o, d, Float(t_min), UInt32(skip)), active, lambda ray, t_best, *_: t_best,
                     visit_triangle, lambda *_: Bool(False), (Float(t_best), UInt32(prim), Float(b1), Float(b2)))
 
