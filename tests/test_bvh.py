@@ -70,7 +70,7 @@ def test_node_table_reaches_every_triangle_once(n):
     kernel = BVHKernel.over(tris, prim_base=0)
     table = np.asarray(kernel.nodes).reshape(-1, 4 * WIDTH)
     assert kernel.rows[0] == 0   # the root comes first
-    reached, pending, deepest = [], [(kernel.root, 1)], 0
+    reached, pending, deepest = [], [(kernel.root[0], 1)], 0
     while pending:
         item, rows = pending.pop()   # rows: on the path from the root, this one included
         row = table[item >> WIDTH]

@@ -1,5 +1,6 @@
 """Batched BVH walks (persistent lanes over rays in memory) and the path tracer bounce by bounce give
 exactly the results of the walk and the paths in one kernel."""
+import drjit as dr
 import numpy as np
 import pytest
 
@@ -159,6 +160,27 @@ def test_a_batch_of_another_size_compiles_no_kernel_anew(kernel_and_rays):
     walks = [kernel_hashes(lambda: kernel.occluded(o, d, dist, none, none, Bool(rng.uniform(size=N) < p),
                                                    batch=True).numpy()) for p in (0.9, 0.8, 0.6)]
     assert walks[2] and walks[2] == walks[1]     # (the first walk's kernel may differ by a lazily made table)
+
+
+def test_another_bvh_of_the_same_depth_compiles_no_kernel_anew(kernel_and_rays):
+    """The grid's origin and step and the root row (tested in the caller's kernel) enter the kernels as
+    values in memory, not literals: a scene's first render finds its kernels in Dr.Jit's cache wherever its
+    meshes lie (as literals they cost a new scene 0.15-0.2 s of compilation). Compared by kernel hash."""
+    kernel, o, d, rng = kernel_and_rays
+    tris = rng.uniform(-1, 1, (3000, 1, 3)) + rng.uniform(-0.08, 0.08, (3000, 3, 3))
+    other = BVHKernel.over(tris * 2.0 + 3.0, prim_base=5)   # other boxes, another root row
+    assert other.stack_size == kernel.stack_size and not np.array_equal(other.grid.origin, kernel.grid.origin)
+    none = UInt32(NO_PRIM)
+
+    def queries(k, o):    # as many rays enter either BVH, so that their batches are alike
+        return lambda: [dr.eval(*k.closest_hit(o, d, 0.0, Float(np.inf), none, Float(0), Float(0), none, batch=True)),
+                        dr.eval(k.occluded(o, d, Float(1.0), none, none, Bool(True), batch=True))]
+
+    here, moved = o * 1.5 - 0.25, o * 2.0 + 3.0   # both in Dr.Jit's memory (a kernel's inputs' alignment is in it)
+    dr.eval(here, moved)
+    for k, origins in ((kernel, here), (other, moved)):   # first runs: tables made lazily
+        queries(k, origins)()
+    assert kernel_hashes(queries(kernel, here)) == kernel_hashes(queries(other, moved))
 
 
 def test_a_batch_of_one_ray_is_its_walk(kernel_and_rays):

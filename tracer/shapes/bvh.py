@@ -30,7 +30,7 @@ from __future__ import annotations
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
-from functools import partial
+from functools import cached_property, partial
 
 import drjit as dr
 import numpy as np
@@ -99,11 +99,17 @@ class BoxGrid:
         return (Array3f(Float(x[0] & GRID), Float(x[0] >> 16), Float(x[1] & GRID)),
                 Array3f(Float(x[1] >> 16), Float(x[2] & GRID), Float(x[2] >> 16)))
 
+    @cached_property
+    def _jit_terms(self) -> tuple[Array3f, Array3f]:
+        """origin and step as values in memory, not literals: the kernels that read them are then the same
+        for every grid, so that a scene's first render finds them in Dr.Jit's kernel cache."""
+        return tuple(Array3f(*(dr.opaque(Float, float(x)) for x in v)) for v in (self.origin, self.step))
+
     def ray_terms(self, o: Array3f, d: Array3f) -> tuple[Array3f, Array3f]:
         """(slope, offset) with q * slope + offset, per axis, the ray parameter t at which o + t d crosses
         grid plane q: the slab test then takes one fma per plane. Direction components below 1e-20 in
         magnitude count as +-1e-20, so that the terms stay finite (no 0 * inf = NaN)."""
-        origin, step = Array3f(*(float(v) for v in self.origin)), Array3f(*(float(v) for v in self.step))
+        origin, step = self._jit_terms
         inv_d = dr.rcp(dr.select(dr.abs(d) < 1e-20, dr.select(d < 0, -1e-20, 1e-20), d))
         return step * inv_d, (origin - o) * inv_d
 
@@ -176,9 +182,10 @@ class BVHKernel:
         self.grid = BoxGrid(*tables.root)
         self.rows = tables.rows
         self.nodes = UInt32(aligned(tables.nodes))
-        # the root row's link: its full slots are those with a link
-        self.root = int((tables.nodes[0, 3::4] != 0) @ (1 << np.arange(WIDTH)))
-        self.root_words = [int(w) for w in tables.nodes[0]]
+        # the root row's link (its full slots: those with a link) and words, in memory: not literals (see
+        # BoxGrid._jit_terms)
+        self.root = dr.opaque(UInt32, int((tables.nodes[0, 3::4] != 0) @ (1 << np.arange(WIDTH))))
+        self.root_words = [dr.opaque(UInt32, int(w)) for w in tables.nodes[0]]
         self.stack_size = tables.stack_size
         tris = aligned_zeros((len(frames), 12), HOST_FLOAT)   # rows (v0, prim, v1 - v0, 0, v2 - v0, 0)
         tris.reshape(-1, 3, 4)[:, :, :3] = np.take(frames, tables.order, axis=0)
@@ -207,7 +214,7 @@ class BVHKernel:
         in the caller's kernel (the row's words as constants), so that the rays that enter none of them (most
         of a render's, which end on the walls and lights around the meshes) stay out of a batched walk."""
         slope, offset = self.grid.ray_terms(o, d)
-        return self._row([UInt32(w) for w in self.root_words], UInt32(self.root), Bool(True), slope, offset, t_max)[0]
+        return self._row(self.root_words, self.root, Bool(True), slope, offset, t_max)[0]
 
     def _step(self, item: UInt32, stack: tuple, payload: tuple, slope: Array3f, offset: Array3f,
               t_end, visit_triangle, finished) -> tuple[UInt32, tuple, tuple, Bool, Bool]:
@@ -284,7 +291,7 @@ class BVHKernel:
             counted = (rest[0] + dr.select(row, 1, 0), rest[1] + dr.select(tested, 1, 0)) if c else ()
             return (item, *counted, *payload, *stack)
 
-        start = dr.select(Bool(active), UInt32(self.root), none)
+        start = dr.select(Bool(active), self.root, none)
         state = (start, *counter, *payload, *(UInt32(none) for _ in range(self.stack_size)))
         out = dr.while_loop(state, cond, body)
         return (*out[1 + c:1 + c + n], *out[1:1 + c])
@@ -321,7 +328,7 @@ class BVHKernel:
             """A lane's state for ray rays[r] where `take`: (item, its ray's values, ray terms, payload)."""
             i = dr.gather(UInt32, rays, r, take)
             values = tuple(x if dr.width(x) == 1 else dr.gather(type(x), x, i, take) for x in ray)
-            return (dr.select(take, UInt32(self.root), none), *values, *self.grid.ray_terms(values[0], values[1]),
+            return (dr.select(take, self.root, none), *values, *self.grid.ray_terms(values[0], values[1]),
                     *(x if dr.width(x) == 1 else dr.gather(type(x), x, i, take) for x in first))
 
         def cond(step, r, *lane):
