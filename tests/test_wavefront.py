@@ -231,3 +231,39 @@ def test_a_levels_children_are_each_parents_slots_in_order(count):
     parent, slot = _children(UInt32(count))
     assert list(zip(parent.numpy().tolist(), slot.numpy().tolist())) == \
         [(p, s) for p, c in enumerate(count) for s in range(c)]
+
+
+def test_a_new_mesh_scene_of_the_same_structure_compiles_no_kernel_anew(tmp_path, monkeypatch):
+    """Two scenes that differ only in their meshes' sizes and shapes (BVHs of the same depth) render with the
+    same kernels: no primitive count, box or root row is a literal in them (a new scene's first render
+    compiled 0.4-0.7 s of kernels before). Compared by kernel hash, as the render reads its kernel history
+    (it keeps the history to itself)."""
+    from validation.benchmark import _sphere_scene
+    from tracer.rendering import render
+
+    def kernel_hashes(run) -> set[str]:
+        seen, read = [], dr.kernel_history
+
+        def history():
+            entries = read()
+            seen.extend(entries)
+            return entries
+
+        monkeypatch.setattr(dr, "kernel_history", history)
+        run()
+        monkeypatch.setattr(dr, "kernel_history", read)
+        return {k["hash"] for k in seen if k["type"] == dr.KernelType.JIT}
+
+    scenes = []
+    for n in (2000, 2600):
+        folder = tmp_path / str(n)
+        folder.mkdir()
+        scenes.append(tracer.load_scene(_sphere_scene(folder, n), width=16, height=16))
+    geos = [SceneGeometry(s) for s in scenes]
+    assert geos[0].meshes.count != geos[1].meshes.count
+    assert geos[0].meshes.bvh.stack_size == geos[1].meshes.bvh.stack_size
+    runs = [lambda s=s, g=g: render(s, "path", spp=2, max_depth=4, geometry=g) for s, g in zip(scenes, geos)]
+    for run in runs:
+        run()
+    first, second = kernel_hashes(runs[0]), kernel_hashes(runs[1])
+    assert len(first) > 5 and first == second

@@ -10,6 +10,7 @@ from __future__ import annotations
 import itertools
 from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import cached_property
 
 import drjit as dr
 import numpy as np
@@ -230,12 +231,19 @@ class SceneGeometry:
         """o + t d, or on a rectangle or triangle the point of its local coordinates kept inside it
         (shapes.planar.inset_point), from the primitive's frame (origin, e1, e2)."""
         p = dr.fma(d, t, o)
-        planar = prim < self.curved_base
         if not self.curved_base:
             return p
+        curved_base, mesh_base = self._planar_ranges
+        planar = prim < curved_base
         origin, e1, e2 = (dr.gather(Array3f, self.prim_frame, prim * 3 + k, planar) for k in range(3))
-        inset = inset_point(origin, e1, e2, b1, b2, prim < self.meshes.base)
+        inset = inset_point(origin, e1, e2, b1, b2, prim < mesh_base)
         return dr.select(planar, inset, p)
+
+    @cached_property
+    def _planar_ranges(self) -> tuple[UInt32, UInt32]:
+        """curved_base and the meshes' first primitive as values in memory, not literals: the kernels that
+        read them are then the same for scenes of other sizes, found in Dr.Jit's kernel cache."""
+        return dr.opaque(UInt32, self.curved_base), dr.opaque(UInt32, self.meshes.base)
 
     def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32,
                  active: Bool = True) -> Bool:

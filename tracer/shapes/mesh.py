@@ -277,9 +277,16 @@ class MeshSet(ShapeSet):
             t, b1, b2 = ray_triangle(o, d, vec3(v[0]), vec3(v[1] - v[0]), vec3(v[2] - v[0]), t_min, INF)
             yield i, exclude(t, i, skip, target), b1, b2
 
+    @cached_property
+    def _range(self) -> tuple[UInt32, UInt32]:
+        """The set's first primitive and triangle count as values in memory, not literals: the kernels that
+        read them are then the same for every mesh, found in Dr.Jit's kernel cache by a new scene."""
+        return dr.opaque(UInt32, self.base), dr.opaque(UInt32, self.count)
+
     def _triangle(self, prim: UInt32, valid: Bool) -> tuple[UInt32, Bool]:
-        tri = prim - self.base
-        return tri, valid & (prim >= self.base) & (tri < self.count)
+        base, count = self._range
+        tri = prim - base
+        return tri, valid & (prim >= base) & (tri < count)
 
     def shading_normal(self, prim: UInt32, b1: Float, b2: Float, n: Array3f) -> Array3f:
         """The normal interpolated from the corners where prim is a triangle of a smooth mesh (n elsewhere)."""
