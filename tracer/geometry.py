@@ -15,7 +15,7 @@ from functools import cached_property
 import drjit as dr
 import numpy as np
 
-from .jit import HOST_FLOAT, NO_PRIM, Array3f, Bool, Float, UInt32, vec3
+from .jit import HOST_FLOAT, NO_PRIM, Array3f, Bool, Float, UInt32, opaque_u32, vec3
 from .lights import LightSample, select_sample
 from .lights.envmap import EnvmapKernel
 from .materials import MaterialTables
@@ -241,9 +241,8 @@ class SceneGeometry:
 
     @cached_property
     def _planar_ranges(self) -> tuple[UInt32, UInt32]:
-        """curved_base and the meshes' first primitive as values in memory, not literals: the kernels that
-        read them are then the same for scenes of other sizes, found in Dr.Jit's kernel cache."""
-        return dr.opaque(UInt32, self.curved_base), dr.opaque(UInt32, self.meshes.base)
+        """curved_base and the meshes' first primitive, as run-time constants (jit.opaque_u32)."""
+        return opaque_u32(self.curved_base), opaque_u32(self.meshes.base)
 
     def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32,
                  active: Bool = True) -> Bool:

@@ -55,7 +55,8 @@ def vec3(v) -> Array3f:
 
 
 def opaque_u32(value: int) -> UInt32:
-    """A run-time constant: changing it does not recompile the kernel."""
+    """A run-time constant: changing it does not recompile the kernel. A scene's sizes and boxes enter the
+    kernels so, not as literals: a new scene's first render then finds its kernels in Dr.Jit's cache."""
     return dr.opaque(UInt32, value)
 
 

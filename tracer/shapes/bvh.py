@@ -38,7 +38,8 @@ from drjit.llvm import Float as _Float32, Float64 as _Float64, UInt32 as _UInt32
 
 from .bvh_build import Tree, aligned, aligned_zeros, build, depth_first, host_array, select_max, select_min
 from .triangle import ray_triangle
-from ..jit import BACKEND, HOST_FLOAT, INF, PRECISION, Array3f, ArrayXf, ArrayXu, Bool, Float, UInt32, UInt64
+from ..jit import BACKEND, HOST_FLOAT, INF, PRECISION, Array3f, ArrayXf, ArrayXu, Bool, Float, UInt32, UInt64, \
+    opaque_u32
 
 GRID = 0xFFFF          # largest grid coordinate of a node's box corner
 LEAF_BIT = 1 << 31     # marks a leaf's link word
@@ -101,8 +102,7 @@ class BoxGrid:
 
     @cached_property
     def _jit_terms(self) -> tuple[Array3f, Array3f]:
-        """origin and step as values in memory, not literals: the kernels that read them are then the same
-        for every grid, so that a scene's first render finds them in Dr.Jit's kernel cache."""
+        """origin and step as run-time constants (see jit.opaque_u32)."""
         return tuple(Array3f(*(dr.opaque(Float, float(x)) for x in v)) for v in (self.origin, self.step))
 
     def ray_terms(self, o: Array3f, d: Array3f) -> tuple[Array3f, Array3f]:
@@ -182,10 +182,9 @@ class BVHKernel:
         self.grid = BoxGrid(*tables.root)
         self.rows = tables.rows
         self.nodes = UInt32(aligned(tables.nodes))
-        # the root row's link (its full slots: those with a link) and words, in memory: not literals (see
-        # BoxGrid._jit_terms)
-        self.root = dr.opaque(UInt32, int((tables.nodes[0, 3::4] != 0) @ (1 << np.arange(WIDTH))))
-        self.root_words = [dr.opaque(UInt32, int(w)) for w in tables.nodes[0]]
+        # the root row's link (its full slots: those with a link) and words, as run-time constants
+        self.root = opaque_u32(int((tables.nodes[0, 3::4] != 0) @ (1 << np.arange(WIDTH))))
+        self.root_words = [opaque_u32(int(w)) for w in tables.nodes[0]]
         self.stack_size = tables.stack_size
         tris = aligned_zeros((len(frames), 12), HOST_FLOAT)   # rows (v0, prim, v1 - v0, 0, v2 - v0, 0)
         tris.reshape(-1, 3, 4)[:, :, :3] = np.take(frames, tables.order, axis=0)
@@ -211,8 +210,8 @@ class BVHKernel:
 
     def _enters_root(self, o: Array3f, d: Array3f, t_max: Float) -> Bool:
         """Whether o + t d, 0 <= t <= t_max, enters a box of the root row's children: the walk's first step,
-        in the caller's kernel (the row's words as constants), so that the rays that enter none of them (most
-        of a render's, which end on the walls and lights around the meshes) stay out of a batched walk."""
+        in the caller's kernel, so that the rays that enter none of them (most of a render's, which end on
+        the walls and lights around the meshes) stay out of a batched walk."""
         slope, offset = self.grid.ray_terms(o, d)
         return self._row(self.root_words, self.root, Bool(True), slope, offset, t_max)[0]
 

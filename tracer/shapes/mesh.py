@@ -18,7 +18,7 @@ from .bvh_cache import cached_layout
 from ..meshes import (MeshError, bounding_box, corner_blocks, cross_rows, length_rows, read_obj, read_ply,
                       vertex_normals)
 from ..serialized import read_serialized
-from ..jit import HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, vec3
+from ..jit import HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, opaque_u32, vec3
 from ..sampling import square_to_uniform_triangle
 from .base import ShapeArgs, ShapeSet, exclude
 from .triangle import ray_triangle
@@ -279,9 +279,8 @@ class MeshSet(ShapeSet):
 
     @cached_property
     def _range(self) -> tuple[UInt32, UInt32]:
-        """The set's first primitive and triangle count as values in memory, not literals: the kernels that
-        read them are then the same for every mesh, found in Dr.Jit's kernel cache by a new scene."""
-        return dr.opaque(UInt32, self.base), dr.opaque(UInt32, self.count)
+        """The set's first primitive and triangle count, as run-time constants (jit.opaque_u32)."""
+        return opaque_u32(self.base), opaque_u32(self.count)
 
     def _triangle(self, prim: UInt32, valid: Bool) -> tuple[UInt32, Bool]:
         base, count = self._range
