@@ -58,10 +58,8 @@ def test_batched_shadow_rays_are_the_walks(kernel_and_rays):
 
 
 def test_rays_that_enter_no_box_of_the_root_row_stay_out_of_the_batched_walk(kernel_and_rays, monkeypatch):
-    """The root row's test in the caller's kernel (_enters_root) is the walk's first step: rays away from
+    """The root row's test before a batched walk (_enters_root) is the walk's first step: rays away from
     the triangles, or stopped before them, are left out of the batch, and every result stays the walk's."""
-    import drjit as dr
-
     import tracer.shapes.bvh as bvh
 
     kernel, _, _, rng = kernel_and_rays

@@ -210,8 +210,8 @@ class BVHKernel:
 
     def _enters_root(self, o: Array3f, d: Array3f, t_max: Float) -> Bool:
         """Whether o + t d, 0 <= t <= t_max, enters a box of the root row's children: the walk's first step,
-        in the caller's kernel, so that the rays that enter none of them (most of a render's, which end on
-        the walls and lights around the meshes) stay out of a batched walk."""
+        in the kernel that evaluates a batch's rays (_walk_batch), so that the rays that enter none of them
+        (most of a render's, which end on the walls and lights around the meshes) stay out of the walk."""
         slope, offset = self.grid.ray_terms(o, d)
         return self._row(self.root_words, self.root, Bool(True), slope, offset, t_max)[0]
 
@@ -290,7 +290,7 @@ class BVHKernel:
             counted = (rest[0] + dr.select(row, 1, 0), rest[1] + dr.select(tested, 1, 0)) if c else ()
             return (item, *counted, *payload, *stack)
 
-        start = dr.select(Bool(active), self.root, none)
+        start = dr.select(active, self.root, none)
         state = (start, *counter, *payload, *(UInt32(none) for _ in range(self.stack_size)))
         out = dr.while_loop(state, cond, body)
         return (*out[1 + c:1 + c + n], *out[1:1 + c])
@@ -304,12 +304,13 @@ class BVHKernel:
         a packet's lanes are idle in _walk). A done lane takes its next ray every REFILL_PERIOD steps, so the
         fetch runs for several lanes at once. Each ray's walk, and so its result, is that of _walk.
         `ray` and `payload`: arrays of one value per ray (or one for all); returns the payload per ray,
-        unchanged where not active (the walked rays' results selected against the start values where they
-        are read next, not copied). `kind`: the query, for timed_walks."""
+        unchanged where not active or where the ray enters no box of the root row (_enters_root, tested
+        here in the kernel that evaluates the rays; the walked rays' results are selected against the start
+        values where they are read next, not copied). `kind`: the query, for timed_walks."""
         width = max(dr.width(x) for x in (*ray, *payload, active))
-        out = tuple(dr.empty(type(x), width) for x in payload)   # written where active
-        active = _batch_array(active, width)   # evaluated once: the walk's rays and the results' mask
-        rays = dr.compress(active)             # the rays to walk, by index
+        out = tuple(dr.empty(type(x), width) for x in payload)   # written where walked
+        walked = _batch_array(active & self._enters_root(ray[0], ray[1], t_max(ray, *payload)), width)
+        rays = dr.compress(walked)             # the rays to walk, by index (`walked` is evaluated once)
         n = dr.width(rays)
         if _walk_seconds is not None:
             for key, count in ((f"{kind}: rays", width), (f"{kind}: walked", n)):
@@ -365,7 +366,7 @@ class BVHKernel:
             dr.eval(*out)
             dr.sync_thread()
             _walk_seconds[kind] = _walk_seconds.get(kind, 0.0) + time.perf_counter() - start
-        return tuple(dr.select(active, x, y) for x, y in zip(out, first))
+        return tuple(dr.select(walked, x, y) for x, y in zip(out, first))
 
     def _triangle(self, slot, o, d, t_min, t_max, skip, target):
         """The triangle in `slot`: (t, prim, b1, b2), t = inf if o + t d misses it in (t_min, t_max) or it is
@@ -391,8 +392,7 @@ class BVHKernel:
                     dr.select(closer, u, b1), dr.select(closer, v, b2))
 
         walk = partial(self._walk_batch, kind="closest hit") if batch else self._walk
-        active = self._enters_root(o, d, Float(t_best)) if batch else Bool(True)
-        return walk((o, d, Float(t_min), UInt32(skip)), active, lambda ray, t_best, *_: t_best,
+        return walk((o, d, Float(t_min), UInt32(skip)), Bool(True), lambda ray, t_best, *_: t_best,
                     visit_triangle, lambda *_: Bool(False), (Float(t_best), UInt32(prim), Float(b1), Float(b2)))
 
     def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32,
@@ -404,8 +404,6 @@ class BVHKernel:
             return (blocked | (self._triangle(slot, o, d, 0.0, dist, skip, target)[0] < dist),)
 
         walk = partial(self._walk_batch, kind="shadow") if batch else self._walk
-        if batch:
-            active = Bool(active) & self._enters_root(o, d, Float(dist))
         return walk((o, d, Float(dist), UInt32(skip), UInt32(target)), Bool(active), lambda ray, _: ray[2],
                     visit_triangle, lambda blocked: blocked, (Bool(False),))[0]
 
