@@ -39,14 +39,16 @@ def random_rays(lo: np.ndarray, hi: np.ndarray, n: int = RAYS, seed: int = 0):
     return o.astype(np.float32), d.astype(np.float32), dist.astype(np.float32)
 
 
-def _timed(launch) -> float:
-    """Median seconds of LAUNCHES launches after a warm-up one."""
+def _timed(*launches, runs: int | None = None) -> float:
+    """Median seconds of `runs` (default LAUNCHES) runs of the launches in turn, each evaluated before the
+    next, after a warm-up run."""
     import drjit as dr
 
     seconds = []
-    for k in range(LAUNCHES + 1):
+    for k in range((LAUNCHES if runs is None else runs) + 1):
         start = time.perf_counter()
-        dr.eval(*launch())
+        for launch in launches:
+            dr.eval(*launch())
         dr.sync_thread()
         seconds.append(time.perf_counter() - start)
     return statistics.median(seconds[1:])
@@ -144,9 +146,9 @@ def profile_render_rays(geometry, render_once, mitsuba_scene) -> dict:
     with geometry.batched():
         for query, key in (("closest hit", "closest"), ("shadow", "shadow")):
             mine = [x for x in ours if x[0] == query]
-            out[f"replay_{key}_seconds"] = _timed_all([lambda x=x: ours_query(*x) for x in mine])
-            out[f"replay_{key}_seconds_mitsuba"] = _timed_all(
-                [lambda x=x: theirs_query(*x) for x in theirs if x[0] == query])
+            out[f"replay_{key}_seconds"] = _timed(*(lambda x=x: ours_query(*x) for x in mine), runs=REPLAYS)
+            out[f"replay_{key}_seconds_mitsuba"] = _timed(
+                *(lambda x=x: theirs_query(*x) for x in theirs if x[0] == query), runs=REPLAYS)
         shadow = [x for x in ours if x[0] == "shadow"]
         if shadow:
             out["replay_blocked_fraction"] = float(np.mean(np.concatenate([ours_query(*x)[0].numpy() for x in shadow])))
@@ -154,21 +156,6 @@ def profile_render_rays(geometry, render_once, mitsuba_scene) -> dict:
                 [np.array(theirs_query(*x)[0]) for x in theirs if x[0] == "shadow"])))
     dr.sync_thread()
     return out
-
-
-def _timed_all(launches: list) -> float:
-    """Median seconds of REPLAYS runs of every launch in turn (each evaluated before the next), after a
-    warm-up run."""
-    import drjit as dr
-
-    seconds = []
-    for k in range(REPLAYS + 1):
-        start = time.perf_counter()
-        for launch in launches:
-            dr.eval(*launch())
-        dr.sync_thread()
-        seconds.append(time.perf_counter() - start)
-    return statistics.median(seconds[1:])
 
 
 def profile_mitsuba(mi, scene) -> dict:
