@@ -37,16 +37,26 @@ def plugin_passes(scene_name: str, estimator: str, max_depth: int, seed: int, ed
 
 
 def kernel_hashes(run) -> set[str]:
-    """The hashes of the Dr.Jit kernels `run()` launches (compiled or from a cache alike)."""
+    """The hashes of the Dr.Jit kernels `run()` launches (compiled or from a cache alike), those in the
+    history that `run` reads itself included (tracer.render keeps its kernel history to itself)."""
     import drjit as dr
 
-    history = dr.flag(dr.JitFlag.KernelHistory)
+    history, read, seen = dr.flag(dr.JitFlag.KernelHistory), dr.kernel_history, []
+
+    def spy():
+        entries = read()
+        seen.extend(entries)
+        return entries
+
     dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history = spy
     try:
-        dr.kernel_history()    # clears it
+        read()    # clears it
         run()
-        return {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
+        spy()
+        return {k["hash"] for k in seen if k["type"] == dr.KernelType.JIT}
     finally:
+        dr.kernel_history = read
         dr.set_flag(dr.JitFlag.KernelHistory, history)
 
 
