@@ -11,6 +11,9 @@ import numpy as np
 from .errors import BackendError
 
 
+# the cores this process may use (threads for host work that leaves the interpreter lock)
+CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
 LLVM_FIX = ("install an LLVM runtime >= 16 (Debian/Ubuntu: apt-get install libllvm19) or point "
             "DRJIT_LIBLLVM_PATH at its libLLVM.so")
 

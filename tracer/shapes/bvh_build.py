@@ -18,6 +18,7 @@ on every machine.
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -29,7 +30,7 @@ from drjit.llvm import ArrayXf as _ArrayXf32, Float as _Float32, Float64 as _Flo
     UInt32 as _UInt32, UInt64 as _UInt64
 
 from ..errors import BackendError
-from ..jit import LLVM_FIX, segment_of
+from ..jit import CORES, LLVM_FIX, segment_of
 
 LEAF_SIZE = 7      # most triangles in a leaf (a leaf's link holds the count in 3 bits)
 TRAVERSAL_COST = 2.0   # the SAH's cost of a walk's step through an inner node, in triangle tests (see _sah)
@@ -158,21 +159,19 @@ def _triangles(vertices: np.ndarray, faces: np.ndarray) -> tuple[_Lists, _Corner
     dr.eval(bits, boxes)
     bits = bits.numpy().reshape(3, n)
     position = np.arange(n, dtype=np.uint64)
-    by_index = []      # per axis: the triangles sorted by centroid, ties by index
-    for a in range(3):
-        key = bits[a].astype(np.uint64)
+
+    def sort(a, after=None):   # the triangles (in `after`'s order, or by index) sorted by centroid along a
+        key = (bits[a] if after is None else bits[a][after]).astype(np.uint64)
         key <<= 32
         key |= position
         key.sort()
-        by_index.append(key.astype(np.uint32))
-    ids = []           # per axis: sorted by centroid, ties by the next axis's order
-    for a in range(3):
-        after = by_index[(a + 1) % 3]
-        key = bits[a][after].astype(np.uint64)
-        key <<= 32
-        key |= position
-        key.sort()
-        ids.append(after[key.astype(np.uint32)])
+        order = key.astype(np.uint32)
+        return order if after is None else after[order]
+
+    # NumPy's sorts and element-wise passes leave the interpreter lock: an axis a thread
+    with ThreadPoolExecutor(min(CORES, 3)) as pool:
+        by_index = list(pool.map(sort, range(3)))   # per axis: sorted by centroid, ties by index
+        ids = list(pool.map(lambda a: sort(a, by_index[(a + 1) % 3]), range(3)))   # ties by the next axis's order
     return _Lists(n, host_array(_UInt32, np.concatenate(ids)), boxes), verts
 
 

@@ -2,7 +2,6 @@
 (tracer.shapes.bvh); interpolated shading normals and texture coordinates; area sampling."""
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cached_property
@@ -18,7 +17,7 @@ from .bvh_cache import cached_layout
 from ..meshes import (MeshError, bounding_box, corner_blocks, cross_rows, length_rows, read_obj, read_ply,
                       vertex_normals)
 from ..serialized import read_serialized
-from ..jit import HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, opaque_u32, vec3
+from ..jit import CORES, HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, opaque_u32, vec3
 from ..sampling import square_to_uniform_triangle
 from .base import ShapeArgs, ShapeSet, exclude
 from .triangle import ray_triangle
@@ -30,8 +29,7 @@ PLUGINS = {"obj": ("filename", "face_normals", "flip_normals", "flip_tex_coords"
            "ply": ("filename", "face_normals", "flip_normals", "flip_tex_coords", "to_world", "silhouette_sampling_weight"),
            "serialized": ("filename", "shape_index", "face_normals", "flip_normals", "to_world",
                           "silhouette_sampling_weight")}
-# threads that read a scene's mesh files: the cores this process may use
-LOAD_THREADS = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+LOAD_THREADS = CORES     # threads that read a scene's mesh files
 BVH_THRESHOLD = 56  # triangles above which a BVH beats the unrolled brute-force tests (measured: brute force wins at 48, the BVH at 64)
 
 
