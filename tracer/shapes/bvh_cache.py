@@ -5,7 +5,7 @@ medians of 3). The folder is
 `$TRACER_BVH_CACHE` if set (`off` keeps nothing on disk), else `$XDG_CACHE_HOME/tracer/bvh` (by default
 `~/.cache/tracer/bvh`); beyond CAPACITY bytes the files least recently used are removed.
 
-The key is a SHA-256 hash of the triangle vertices' bytes (or of the meshes' vertices and faces that
+The key is a SHA-256 hash of the SHA-256 hashes of the triangle vertices' bytes (or of the meshes' vertices and faces that
 determine them), their shapes and dtypes, the leaf size and this module's FORMAT, so a mesh that changes
 gets a new key. A file is written to a temporary beside its target and moved into place (a reader never
 sees half a file) and checked on load: its stored key, the node table's and the order's shapes and types,
@@ -17,6 +17,7 @@ import hashlib
 import os
 import zipfile
 from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -24,6 +25,7 @@ import numpy as np
 
 from .bvh import LEAF_BIT, WIDTH, Layout, layout
 from .bvh_build import LEAF_SIZE
+from ..jit import CORES
 
 FORMAT = 5            # bump when Layout or the build changes (2: SAH build, leaves of up to 4; 3: 4-wide rows;
                       # 4: splits along any of the three axes; 5: the SAH's traversal cost 2)
@@ -36,11 +38,16 @@ _memory: OrderedDict[str, Layout] = OrderedDict()
 
 
 def key(*arrays: np.ndarray) -> str:
-    """The cache key of (n, 3, 3) triangle vertices, or of arrays that determine them."""
+    """The cache key of (n, 3, 3) triangle vertices, or of arrays that determine them: a hash of each
+    array's hash, its shape and dtype (the arrays hashed on several threads: hashlib leaves the
+    interpreter lock)."""
+    arrays = [np.ascontiguousarray(a) for a in arrays]
+    with ThreadPoolExecutor(CORES) as pool:
+        digests = list(pool.map(lambda a: hashlib.sha256(a.data).digest(), arrays))
     h = hashlib.sha256(f"{FORMAT} {LEAF_SIZE}".encode())   # CPUs with SHA extensions: twice BLAKE2b's speed
-    for a in map(np.ascontiguousarray, arrays):
+    for a, digest in zip(arrays, digests):
         h.update(f" {a.dtype.str} {a.shape}".encode())
-        h.update(a.data)
+        h.update(digest)
     return h.hexdigest()
 
 
