@@ -36,7 +36,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float as _Float32, Float64 as _Float64, UInt32 as _UInt32
 
-from .bvh_build import Tree, aligned, aligned_zeros, build, depth_first, host_array, select_max, select_min
+from .bvh_build import Tree, aligned_zeros, build, depth_first, host_array, select_max, select_min
 from .triangle import ray_triangle
 from ..jit import BACKEND, HOST_FLOAT, INF, PRECISION, Array3f, ArrayXf, ArrayXu, Bool, Float, UInt32, UInt64, \
     opaque_u32
@@ -160,7 +160,8 @@ def layout(vertices: np.ndarray, faces: np.ndarray | None = None) -> Layout:
     link = np.where(tree.inner, index, LEAF_BIT | (tree.first * 8 + tree.count))
     words = np.zeros((len(tree.left) + 1, 4), np.uint32)   # per node its box's words and its link; an
     words[:-1, :3], words[:-1, 3] = boxes, link              # empty slot (-1) reads the last, zeros
-    nodes = np.take(words, children, axis=0).reshape(len(wide), 4 * WIDTH)   # (a fifth of indexing's time)
+    nodes = np.take(words, children, axis=0, mode="wrap",   # (a fifth of indexing's time; wrap: unbuffered)
+                    out=aligned_zeros((*children.shape, 4), np.uint32)).reshape(len(wide), 4 * WIDTH)
     stack_size = max(1, len(tree.levels) // 2)   # a leaf at depth d has ceil(d / 2) rows above it
     return Layout(nodes, tree.order, wide, np.array([tree.lo[0], tree.hi[0]], np.float64), stack_size)
 
@@ -181,7 +182,7 @@ class BVHKernel:
     def __init__(self, tables: Layout, frames: np.ndarray, prim_base: int):
         self.grid = BoxGrid(*tables.root)
         self.rows = tables.rows
-        self.nodes = UInt32(aligned(tables.nodes))
+        self.nodes = host_array(UInt32, tables.nodes)
         # the root row's link (its full slots: those with a link) and words, as run-time constants
         self.root = opaque_u32(int((tables.nodes[0, 3::4] != 0) @ (1 << np.arange(WIDTH))))
         self.root_words = [opaque_u32(int(w)) for w in tables.nodes[0]]

@@ -130,7 +130,7 @@ class _Corners:
     def __init__(self, vertices: np.ndarray, faces: np.ndarray):
         v = vertices if vertices.dtype in (np.float32, np.float64) else vertices.astype(np.float64)
         self.real = _Float32 if v.dtype == np.float32 else _Float64
-        self.coords, self.faces = host_array(self.real, v), host_array(_UInt32, faces.astype(np.uint32))
+        self.coords, self.faces = host_array(self.real, v), host_array(_UInt32, faces, np.uint32)
 
     def coordinate(self, t: _UInt32, a: int, active=True) -> list:
         """Coordinate a of the three corners of triangles t."""
@@ -172,7 +172,7 @@ def _triangles(vertices: np.ndarray, faces: np.ndarray) -> tuple[_Lists, _Corner
     with ThreadPoolExecutor(min(CORES, 3)) as pool:
         by_index = list(pool.map(sort, range(3)))   # per axis: sorted by centroid, ties by index
         ids = list(pool.map(lambda a: sort(a, by_index[(a + 1) % 3]), range(3)))   # ties by the next axis's order
-    return _Lists(n, host_array(_UInt32, np.concatenate(ids)), boxes), verts
+    return _Lists(n, host_array(_UInt32, np.concatenate(ids, out=aligned_zeros(3 * n, np.uint32))), boxes), verts
 
 
 def _leaf_boxes(verts: _Corners, ids: _UInt32, first: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -375,11 +375,14 @@ def _opaque(x: np.ndarray) -> _UInt32:
     return out
 
 
-def host_array(kind: type, a: np.ndarray):
-    """`a`, flattened, as a host array of type `kind`, in memory starting on a cache line: Dr.Jit wraps a
-    NumPy array's memory as it is, and a kernel reading it compiles anew for each alignment it finds."""
-    a = np.ascontiguousarray(a).ravel()
-    return kind(a if a.ctypes.data % 64 == 0 else aligned(a))
+def host_array(kind: type, a: np.ndarray, dtype=None):
+    """`a`, flattened (in `dtype`, if given), as a host array of type `kind`, in memory starting on a cache
+    line: Dr.Jit wraps a NumPy array's memory as it is, and a kernel reading it compiles anew for each
+    alignment it finds. Copied only where needed."""
+    a = np.asarray(a)
+    if dtype is not None and a.dtype != dtype or not a.flags.c_contiguous or a.ctypes.data % 64:
+        a = aligned(a, dtype)
+    return kind(a.ravel())
 
 
 def depth_first(tree: Tree) -> np.ndarray:
@@ -405,11 +408,11 @@ def select_max(a, b):
     return dr.select(a > b, a, b)
 
 
-def aligned(a: np.ndarray) -> np.ndarray:
-    """A copy of `a` (flattened) starting on a 64-byte boundary (as aligned_zeros)."""
-    out = aligned_zeros(a.size, a.dtype)
-    out[:] = a.ravel()
-    return out
+def aligned(a: np.ndarray, dtype=None) -> np.ndarray:
+    """A copy of `a` (flattened; in `dtype`, if given) starting on a 64-byte boundary (as aligned_zeros)."""
+    out = aligned_zeros(a.shape, dtype or a.dtype)
+    out[...] = a
+    return out.ravel()
 
 
 def aligned_zeros(shape: int | tuple[int, ...], dtype, alignment: int = 64) -> np.ndarray:

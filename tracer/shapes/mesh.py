@@ -13,6 +13,7 @@ import numpy as np
 
 from .. import transform
 from .bvh import BVHKernel, triangle_frames
+from .bvh_build import aligned_zeros
 from .bvh_cache import cached_layout
 from ..meshes import (MeshError, bounding_box, corner_blocks, cross_rows, length_rows, read_obj, read_ply,
                       vertex_normals)
@@ -158,7 +159,9 @@ class MeshSet(ShapeSet):
         # every mesh's vertices, and faces numbering them
         first_vertex = np.cumsum([0] + [len(m.vertices) for m in meshes])
         first_face = np.cumsum([0] + [len(m.faces) for m in meshes])
-        self._vertices = np.concatenate([m.vertices for m in meshes]) if meshes else np.zeros((0, 3))
+        vertices = [m.vertices for m in meshes]
+        self._vertices = np.concatenate(vertices, out=aligned_zeros((first_vertex[-1], 3), np.result_type(*vertices))) \
+            if meshes else np.zeros((0, 3))    # on a cache line: the BVH build's kernels read it as it is
         self._faces = np.concatenate([m.faces for m in meshes], dtype=np.int64) if meshes \
             else np.zeros((0, 3), np.int64)
         for m, k, lo in zip(meshes, first_vertex, first_face):
