@@ -380,7 +380,7 @@ def host_array(kind: type, a: np.ndarray, dtype=None):
     line: Dr.Jit wraps a NumPy array's memory as it is, and a kernel reading it compiles anew for each
     alignment it finds. Copied only where needed."""
     a = np.asarray(a)
-    if dtype is not None and a.dtype != dtype or not a.flags.c_contiguous or a.ctypes.data % 64:
+    if (dtype is not None and a.dtype != dtype) or not a.flags.c_contiguous or a.ctypes.data % 64:
         a = aligned(a, dtype)
     return kind(a.ravel())
 

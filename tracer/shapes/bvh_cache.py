@@ -5,9 +5,9 @@ medians of 3). The folder is
 `$TRACER_BVH_CACHE` if set (`off` keeps nothing on disk), else `$XDG_CACHE_HOME/tracer/bvh` (by default
 `~/.cache/tracer/bvh`); beyond CAPACITY bytes the files least recently used are removed.
 
-The key is a SHA-256 hash of the SHA-256 hashes of the triangle vertices' bytes (or of the meshes' vertices and faces that
-determine them), their shapes and dtypes, the leaf size and this module's FORMAT, so a mesh that changes
-gets a new key. A file is written to a temporary beside its target and moved into place (a reader never
+The key is a SHA-256 hash of the SHA-256 hashes of the triangle vertices' bytes (or of the meshes'
+vertices and faces that determine them), their shapes and dtypes, the leaf size and this module's FORMAT,
+so a mesh that changes gets a new key. A file is written to a temporary beside its target and moved into place (a reader never
 sees half a file) and checked on load: its stored key, the node table's and the order's shapes and types,
 and that the order is a permutation of the triangles; a file that fails is rebuilt and overwritten.
 """
@@ -17,8 +17,8 @@ import hashlib
 import os
 import zipfile
 from collections import OrderedDict
-from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
