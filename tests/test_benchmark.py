@@ -123,6 +123,17 @@ def test_mesh_rows_pool_two_processes_renders():
     assert first["setup_seconds"] == 1.5 and first["setup_runs"] == [1.0, 2.0] and "profile" in first
 
 
+def test_the_mesh_table_shows_each_figures_fastest_and_slowest_run():
+    row = {"triangles": 1000, "tracer": {"seconds": [2.5, 2.0, 3.25], "setup_runs": [1.0, 1.5]},
+           "Mitsuba": {"seconds": [2.2, 2.1], "setup_runs": [0.5, 0.25]},
+           "whole": {"tracer": {"seconds": [4.0, 5.0]}, "Mitsuba": {"seconds": [3.0, 3.5, 3.25]}}}
+    line = benchmark._mesh_spread(row)
+    assert line == ("- 1,000 triangles: render: tracer 2.00–3.25 (3), Mitsuba 2.10–2.20 (2); setup: tracer "
+                    "1.00–1.50 (2), Mitsuba 0.25–0.50 (2); whole process: tracer 4.00–5.00 (2), Mitsuba 3.00–3.50 (3).")
+    del row["tracer"]["setup_runs"]     # a run from before the setups were kept
+    assert "setup" not in benchmark._mesh_spread(row)
+
+
 def test_a_renders_own_rays_are_replayed_through_both_renderers(tmp_path):
     """The rays one render asks about, recorded and replayed through the tracer's queries and Mitsuba's: as
     many as the render traced, and the same shadow rays blocked on both sides."""

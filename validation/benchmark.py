@@ -620,6 +620,19 @@ def markdown(r: dict) -> str:
     return "\n".join(lines)
 
 
+def _mesh_spread(row: dict) -> str:
+    """A line of the mesh table's spreads: each figure's fastest and slowest run."""
+    def spread(seconds: list[float]) -> str:
+        return f"{min(seconds):.2f}–{max(seconds):.2f} ({len(seconds)})"
+
+    t, m, w = row["tracer"], row["Mitsuba"], row["whole"]
+    parts = [f"render: tracer {spread(t['seconds'])}, Mitsuba {spread(m['seconds'])}"]
+    if "setup_runs" in t and "setup_runs" in m:   # a run from before they were kept has none
+        parts.append(f"setup: tracer {spread(t['setup_runs'])}, Mitsuba {spread(m['setup_runs'])}")
+    parts.append("whole process: " + ", ".join(f"{name} {spread(x['seconds'])}" for name, x in w.items()))
+    return f"- {row['triangles']:,} triangles: " + "; ".join(parts) + "."
+
+
 def mesh_markdown(rows: dict) -> list[str]:
     """The multi-mesh scene's section of the report."""
     lines = [
@@ -654,6 +667,8 @@ def mesh_markdown(rows: dict) -> list[str]:
         lines.append(f"| {row['triangles']:,} | {t['median']:.2f} | {m['median']:.2f} | {t['median'] / m['median']:.2f} "
                      f"| {st:.2f} | {cached[0]} | {sm:.2f} | {st / sm:.2f}, {cached[1]} "
                      f"| {wt:.2f} | {wc:.2f} | {wm:.2f} | {wt / wm:.2f}, {wc / wm:.2f} |")
+    lines += ["", "The runs behind each figure, fastest to slowest in seconds (how many runs in brackets):", ""]
+    lines += [_mesh_spread(row) for row in rows.values()]
     lines += ["", "### Where the time goes", "",
               "Ray queries alone (no shading): 2^20 rays from random points inside the meshes' bounding box in "
               "random directions, closest hit (the tracer's `closest_hit`, Mitsuba's `ray_intersect_preliminary`) "
