@@ -161,7 +161,7 @@ def test_a_batch_of_another_size_compiles_no_kernel_anew(kernel_and_rays):
 
 
 def test_another_bvh_of_the_same_depth_compiles_no_kernel_anew(kernel_and_rays):
-    """The grid's origin and step and the root row (tested in the caller's kernel) enter the kernels as
+    """The grid's origin and step and the root row (tested before a batched walk) enter the kernels as
     values in memory, not literals: a scene's first render finds its kernels in Dr.Jit's cache wherever its
     meshes lie (as literals they cost a new scene 0.15-0.2 s of compilation). Compared by kernel hash."""
     kernel, o, d, rng = kernel_and_rays

@@ -128,9 +128,9 @@ class _Corners:
     unless given as float32) and faces (3n)."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray):
-        v = vertices if vertices.dtype in (np.float32, np.float64) else vertices.astype(np.float64)
-        self.real = _Float32 if v.dtype == np.float32 else _Float64
-        self.coords, self.faces = host_array(self.real, v), host_array(_UInt32, faces, np.uint32)
+        real = np.float32 if vertices.dtype == np.float32 else np.float64
+        self.real = _Float32 if real == np.float32 else _Float64
+        self.coords, self.faces = host_array(self.real, vertices, real), host_array(_UInt32, faces, np.uint32)
 
     def coordinate(self, t: _UInt32, a: int, active=True) -> list:
         """Coordinate a of the three corners of triangles t."""
