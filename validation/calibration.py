@@ -7,6 +7,11 @@ rejection is a false alarm. Each repetition renders PASSES test passes and an eq
 (the check's design) with fresh seeds; the earlier test (`stats.welch_test`, against a many-sample
 reference of OLD_REF_SPP per pass, as the reports used it) runs on the same test passes.
 
+The scene reports' sweeps (validation.report) run the same test in another configuration: fewer passes
+(8) on larger images (128 x 128: 16 times the blocks), the branching estimator at N = 16, M = 8. Their null
+cells (SWEEP) measure the test there too, and pair the branching estimator's passes with Mitsuba's, as a
+report does.
+
 Rendered block means are cached per cell in .cache/calibration (keyed by the scene's content and the cell),
 so the tables can be recomputed without rendering and an interrupted run resumes.
 """
@@ -21,7 +26,9 @@ from scipy import stats as sps
 from tqdm import tqdm
 
 from . import protocol
+from .check import REPORT_REFERENCE_SPP
 from .renderers import MitsubaRenderer, TracerRenderer
+from .report import SWEEP_DEPTH, Config
 from .scenefile import plan
 from .stats import block_means, compare, welch_test
 
@@ -31,6 +38,22 @@ SCENES = {"room": "mitsuba_scenes/hexagon_room.xml", "caustic": "mitsuba_scenes/
 REPORT = dict(direct=4, indirect=4)
 OLD_REF_SPP = 256
 ALPHAS = (1e-3, 1e-2, 1e-1)     # family-wise levels at which the rates are measured
+
+
+@dataclass(frozen=True)
+class Setting:
+    """How a cell's comparisons render: passes per side, the image's longer side, the branching estimator's
+    N and M, and whether the earlier test's many-sample reference is rendered too."""
+    passes: int = protocol.PASSES
+    size: int = protocol.SIZE
+    report: tuple[int, int] = (REPORT["direct"], REPORT["indirect"])
+    old: bool = True
+
+
+CHECK = Setting()    # validate check's
+SWEEP = Setting(Config.passes, Config.sweep_size, (16, 8), old=False)   # the scene reports' sweeps'
+SWEEP_SCENES = {"cornell_box": "mitsuba_scenes/cornell_box.xml", "room": SCENES["room"]}   # the reports' scenes
+SWEEP_REPORT_SPP = 4    # the branching estimator's camera rays per pixel and pass in the sweep cells
 
 
 @dataclass(frozen=True)
@@ -45,10 +68,10 @@ class Cell:
     def name(self) -> str:
         return f"{self.scene}-{self.renderer}-spp{self.spp}-d{self.max_depth}"
 
-    def make_renderer(self):
+    def make_renderer(self, setting: Setting = CHECK):
         if self.renderer == "mitsuba":
             return MitsubaRenderer()
-        return TracerRenderer("report", **REPORT) if self.renderer == "report" else TracerRenderer("path")
+        return TracerRenderer("report", *setting.report) if self.renderer == "report" else TracerRenderer("path")
 
 
 def grid(repetitions: int = 12) -> list[Cell]:
@@ -64,30 +87,41 @@ def grid(repetitions: int = 12) -> list[Cell]:
     return cells
 
 
-def _blocks(renderer, scene_plan, spp: int, seed: int) -> np.ndarray:
-    return block_means(renderer.passes(scene_plan, protocol.PASSES, spp, seed), protocol.BLOCK).astype(np.float32)
+def sweep_grid(repetitions: int = 24) -> list[Cell]:
+    """The scene reports' null cells (setting SWEEP), per report scene at the sweeps' max_depth: Mitsuba at
+    the samples per pass it renders against the branching estimator's SWEEP_REPORT_SPP, that estimator, and
+    the tracer's path at 16 spp."""
+    pairs = (("mitsuba", SWEEP_REPORT_SPP * REPORT_REFERENCE_SPP), ("report", SWEEP_REPORT_SPP), ("path", 16))
+    return [Cell(scene, renderer, spp, SWEEP_DEPTH, repetitions) for scene in SWEEP_SCENES for renderer, spp in pairs]
 
 
-def run_cell(cell: Cell, cache: Path = CACHE) -> dict[str, np.ndarray]:
+def _blocks(renderer, scene_plan, passes: int, spp: int, seed: int) -> np.ndarray:
+    return block_means(renderer.passes(scene_plan, passes, spp, seed), protocol.BLOCK).astype(np.float32)
+
+
+def run_cell(cell: Cell, cache: Path = CACHE, setting: Setting = CHECK) -> dict[str, np.ndarray]:
     """The cell's rendered block means: test (R, K, ...), equal-budget reference (R, K, ...), many-sample
-    reference (K, ...), and seconds per repetition; cached."""
-    scene_plan = plan(SCENES[cell.scene], size=protocol.SIZE, max_depth=cell.max_depth)
-    key = scene_plan.content_key(**asdict(cell), passes=protocol.PASSES, old_ref_spp=OLD_REF_SPP, report=REPORT)
+    reference (K, ...; where setting.old), and seconds per repetition; cached."""
+    scene_plan = plan({**SCENES, **SWEEP_SCENES}[cell.scene], size=setting.size, max_depth=cell.max_depth)
+    key = scene_plan.content_key(**asdict(cell), passes=setting.passes, old_ref_spp=OLD_REF_SPP,
+                                 report=dict(zip(REPORT, setting.report)))
     path = cache / f"{cell.name}-{key}.npz"
     if path.exists():
         with np.load(path) as z:
             return dict(z)
-    renderer = cell.make_renderer()
-    old_spp = 64 if cell.renderer == "report" else OLD_REF_SPP
-    old = _blocks(renderer, scene_plan, old_spp, protocol.SEED_REFERENCE)
+    renderer = cell.make_renderer(setting)
+    out = {}
+    if setting.old:
+        old_spp = 64 if cell.renderer == "report" else OLD_REF_SPP
+        out["old"] = _blocks(renderer, scene_plan, setting.passes, old_spp, protocol.SEED_REFERENCE)
     tests, refs, seconds = [], [], []
-    for r in range(cell.repetitions):
+    for r in tqdm(range(cell.repetitions), desc=cell.name, unit="repetition", leave=False):
         base = protocol.SEED_NULL + 1000 * r
         start = time.perf_counter()
-        tests.append(_blocks(renderer, scene_plan, cell.spp, base))
-        refs.append(_blocks(renderer, scene_plan, cell.spp, base + 500))
+        tests.append(_blocks(renderer, scene_plan, setting.passes, cell.spp, base))
+        refs.append(_blocks(renderer, scene_plan, setting.passes, cell.spp, base + 500))
         seconds.append(time.perf_counter() - start)
-    out = dict(test=np.stack(tests), ref=np.stack(refs), old=old, seconds=np.array(seconds))
+    out |= dict(test=np.stack(tests), ref=np.stack(refs), seconds=np.array(seconds))
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp.npz")
     np.savez(tmp, **out)
@@ -98,13 +132,35 @@ def run_cell(cell: Cell, cache: Path = CACHE) -> dict[str, np.ndarray]:
 def rates(data: dict[str, np.ndarray]) -> dict:
     """Per cell: false alarms of the new test (disagree) and the old one, at each level of ALPHAS, and
     how often the new test was inconclusive."""
-    out = {"n": len(data["test"]), "seconds": float(np.median(data["seconds"]))}
+    out = {"n": len(data["test"]), "seconds": float(np.median(data["seconds"]))} | verdicts(data["test"], data["ref"])
+    if "old" in data:
+        for alpha in ALPHAS:
+            out[f"old_{alpha:g}"] = sum(not welch_test(t, data["old"], alpha=alpha, block=1).passed for t in data["test"])
+    return out
+
+
+def verdicts(tests: np.ndarray, refs: np.ndarray) -> dict:
+    """How many of the comparisons of tests[i] with refs[i] disagree, and how many are inconclusive, at each
+    level of ALPHAS."""
+    out = {}
     for alpha in ALPHAS:
-        new = [compare(t, r, alpha) for t, r in zip(data["test"], data["ref"])]
+        new = [compare(t, r, alpha) for t, r in zip(tests, refs)]
         out[f"new_{alpha:g}"] = sum(c.verdict == "disagree" for c in new)
         out[f"inconclusive_{alpha:g}"] = sum(c.verdict == "inconclusive" for c in new)
-        out[f"old_{alpha:g}"] = sum(not welch_test(t, data["old"], alpha=alpha, block=1).passed for t in data["test"])
     return out
+
+
+def measure_sweep(repetitions: int = 24, cache: Path = CACHE) -> tuple[list[dict], list[dict]]:
+    """The scene reports' null cells (rows as measure's) and, per scene, the branching estimator's test passes
+    against Mitsuba's (repetition by repetition: independent renders), as a report compares them."""
+    data = {cell: run_cell(cell, cache, SWEEP) for cell in tqdm(sweep_grid(repetitions), desc="sweep cells", unit="cell")}
+    rows = [asdict(cell) | rates(d) for cell, d in data.items()]
+    cross = []
+    for scene in SWEEP_SCENES:
+        side = {cell.renderer: d for cell, d in data.items() if cell.scene == scene}
+        cross.append({"scene": scene, "n": len(side["report"]["test"])}
+                     | verdicts(side["report"]["test"], side["mitsuba"]["test"]))
+    return rows, cross
 
 
 def interval(k: int, n: int) -> tuple[float, float]:
@@ -158,6 +214,44 @@ def _pooled(rows: list[dict]) -> list[str]:
     return lines
 
 
+def _sweep_section(rows: list[dict], cross: list[dict]) -> list[str]:
+    """The scene reports' configuration: its null cells and the branching estimator against Mitsuba."""
+    n, tests = sum(r["n"] for r in rows), (SWEEP.size // protocol.BLOCK) ** 2 * 3
+    lines = [
+        f"## False alarms in the scene reports' configuration: {n} null comparisons", "",
+        "The scene reports (`validate report`) check every sweep run with the same test in another "
+        f"configuration: {SWEEP.passes} passes per side at {SWEEP.size} x {SWEEP.size} ({tests} block tests, 16 "
+        f"times the check's), max_depth {SWEEP_DEPTH} in the error-against-time sweep, the branching estimator "
+        f"at N = {SWEEP.report[0]}, M = {SWEEP.report[1]} against Mitsuba at {REPORT_REFERENCE_SPP} samples per "
+        f"pass per camera ray. Null comparisons there, on the reports' scenes, at max_depth {SWEEP_DEPTH}: "
+        "each renderer against itself with independent seeds (disagree / comparisons, inconclusive ones "
+        "named):", "",
+        "| scene | renderer | spp per pass | " + " | ".join(f"alpha {a:g}" for a in ALPHAS) + " |",
+        "|---|---|---:|" + "---|" * len(ALPHAS)]
+    for r in rows:
+        lines.append(f"| {r['scene']} | {r['renderer']} | {r['spp']} | " + " | ".join(_rate(r, a) for a in ALPHAS) + " |")
+    lines += ["", "Pooled:", "", "| family-wise alpha | check: disagree | 95% interval | check: inconclusive |",
+              "|---:|---:|---|---:|"]
+    for alpha in ALPHAS:
+        k, inc = sum(r[f"new_{alpha:g}"] for r in rows), sum(r[f"inconclusive_{alpha:g}"] for r in rows)
+        lo, hi = interval(k, n)
+        lines.append(f"| {alpha:g} | {k}/{n} = {k / n:.2%} | [{lo:.2%}, {hi:.2%}] | {inc}/{n} |")
+    lines += ["", f"The comparison a report makes, the branching estimator ({SWEEP_REPORT_SPP} camera rays per pixel "
+              f"and pass) against Mitsuba ({SWEEP_REPORT_SPP * REPORT_REFERENCE_SPP} spp per pass), each "
+              "repetition's test passes of the two cells above (independent renders; a false alarm only if both "
+              "renderers are unbiased):", "",
+              "| scene | comparisons | " + " | ".join(f"alpha {a:g}" for a in ALPHAS) + " |",
+              "|---|---:|" + "---|" * len(ALPHAS)]
+    for r in cross:
+        lines.append(f"| {r['scene']} | {r['n']} | " + " | ".join(_rate(r, a) for a in ALPHAS) + " |")
+    return lines
+
+
+def _rate(row: dict, alpha: float) -> str:
+    inc = row[f"inconclusive_{alpha:g}"]
+    return f"{row[f'new_{alpha:g}']}/{row['n']}" + (f", {inc} inc." if inc else "")
+
+
 def check_process_seconds() -> tuple[float, float]:
     """Wall seconds of `validate check` on the room as a user runs it: with an empty cache, then cached."""
     import os
@@ -184,10 +278,12 @@ def report(out: Path, repetitions: int = 12) -> Path:
 
     start = time.perf_counter()
     rows = measure(grid(repetitions))
+    sweep_rows, cross = measure_sweep(2 * repetitions)
     cells = power.measure_all()
     seconds = [c.correct.seconds for c in cells]
     cold, warm = check_process_seconds()
-    write_json(rows, out.with_suffix(".json"))
+    write_json([r | {"setting": "check"} for r in rows] + [r | {"setting": "sweep"} for r in sweep_rows]
+               + [r | {"setting": "sweep", "renderer": "report against mitsuba"} for r in cross], out.with_suffix(".json"))
     n = sum(r["n"] for r in rows)
     lines = [
         "# Calibration of `validate check`", "",
@@ -226,6 +322,7 @@ def report(out: Path, repetitions: int = 12) -> Path:
         "often the check was inconclusive:", ""] + _cell_table(rows, 1e-3) + [
         "", "The same at family-wise alpha 0.1, where a calibrated test rejects about one comparison in ten — a "
         "finer view of its level than 1e-3 gives with these counts:", ""] + _cell_table(rows, 0.1) + [
+        ""] + _sweep_section(sweep_rows, cross) + [
         "", "## Power: injected faults", ""] + power.markdown(cells) + [
         "", "Each cell: the check's verdict on the faulty tracer / on the correct tracer, at that many Mitsuba "
         "samples per pass, without escalation (faults in validation/faults.py; the branching estimator renders "
