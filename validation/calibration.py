@@ -158,9 +158,27 @@ def measure_sweep(repetitions: int = 24, cache: Path = CACHE) -> tuple[list[dict
     cross = []
     for scene in SWEEP_SCENES:
         side = {cell.renderer: d for cell, d in data.items() if cell.scene == scene}
-        cross.append({"scene": scene, "n": len(side["report"]["test"])}
-                     | verdicts(side["report"]["test"], side["mitsuba"]["test"]))
+        report, mitsuba = side["report"], side["mitsuba"]
+        cross.append({"scene": scene, "n": len(report["test"]), "disagreements": _disagreements(report, mitsuba)}
+                     | verdicts(report["test"], mitsuba["test"]))
     return rows, cross
+
+
+def _disagreements(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> list[dict]:
+    """The comparisons of a's test passes with b's that disagree at protocol.ALPHA: their repetition, most
+    rejected block and channel, p, each side's passes there (mean, standard deviation) and each side's mean
+    there over all its runs (test and ref: 2R runs of independent seeds)."""
+    out = []
+    for r, (ta, tb) in enumerate(zip(a["test"], b["test"])):
+        c = compare(ta, tb, protocol.ALPHA)
+        if c.verdict != "disagree":
+            continue
+        at = (slice(None), *c.worst_block)
+        out.append({"repetition": r, "block": [int(i) for i in c.worst_block], "p": c.min_p,
+                    "passes": [[float(x[at].mean()), float(x[at].std(ddof=1))] for x in (ta, tb)],
+                    "all_runs": [float(np.concatenate([x["test"], x["ref"]])[(slice(None), *at)].mean())
+                                 for x in (a, b)]})
+    return out
 
 
 def interval(k: int, n: int) -> tuple[float, float]:
@@ -244,6 +262,15 @@ def _sweep_section(rows: list[dict], cross: list[dict]) -> list[str]:
               "|---|---:|" + "---|" * len(ALPHAS)]
     for r in cross:
         lines.append(f"| {r['scene']} | {r['n']} | " + " | ".join(_rate(r, a) for a in ALPHAS) + " |")
+    found = [(r["scene"], d) for r in cross for d in r["disagreements"]]
+    if found:
+        lines += ["", f"Each of these comparisons that disagrees at alpha {protocol.ALPHA:g}, at its most rejected "
+                  "block: the two sides' passes there (mean and standard deviation of the pass means), and each "
+                  "side's mean there over all its runs of the two cells:", ""]
+        lines += [f"- {scene}, repetition {d['repetition']}: block ({d['block'][0]}, {d['block'][1]}) "
+                  f"{'RGB'[d['block'][2]]}, p = {d['p']:.2g}; branching estimator {d['passes'][0][0]:.4g} "
+                  f"(sd {d['passes'][0][1]:.2g}), Mitsuba {d['passes'][1][0]:.4g} (sd {d['passes'][1][1]:.2g}); "
+                  f"over all runs {d['all_runs'][0]:.4g} and {d['all_runs'][1]:.4g}" for scene, d in found]
     return lines
 
 
