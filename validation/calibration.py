@@ -324,7 +324,10 @@ def report(out: Path, repetitions: int = 12) -> Path:
         "a many-sample reference, the passes that missed the rare bright paths have both a low mean and a low "
         "variance, and Welch's t is then far from t-distributed on the dark side. With equal budgets the two "
         "pass means are skewed alike and their difference is symmetric, so the test keeps its level (Jung, "
-        "Hanika and Dachsbacher 2020 compare renderers with Welch's test at low, equal sample counts).",
+        "Hanika and Dachsbacher 2020 compare renderers with Welch's test at low, equal sample counts). The "
+        "branching estimator's budget is equal in paths, not in camera rays: it sends 32 times fewer than "
+        "Mitsuba's passes, so where a block's pixels straddle the edge of a light, its passes can all miss the "
+        "light together (an example in the scene reports' configuration below).",
         "- **Welch's t-test** per 4 x 4 block and channel and on the image mean per channel, Bonferroni-corrected "
         "(half of alpha to the blocks, half to the image means), family-wise alpha 1e-3 per check. Differences "
         "below 1e-5 of a block's mean are not resolved: that is float32 round-off (a constant sky seen directly "
