@@ -44,3 +44,15 @@ def test_a_reports_summary_names_each_disagreeing_run():
     rows = [{"test": "agree", "key": "a", "min_p": 0.01}, {"test": "disagree", "key": "b", "min_p": 1.6e-7}]
     assert _disagreeing(rows) == "1 of 2 (b: smallest p 1.6e-07)"
     assert _disagreeing(rows[:1]) == "0 of 1"
+
+
+def test_cross_compares_repetitions_and_every_run_with_every_run():
+    rng = np.random.default_rng(4)
+    tracer, mitsuba = ({"test": passes(rng, shift), "ref": passes(rng, shift)} for shift in (0.2, 0.0))
+    c = calibration._cross(tracer, mitsuba)
+    assert c["n"] == 3 and c["new_0.001"] == 3
+    assert c["all_pairs"]["n"] == 36 and c["all_pairs"]["new_0.001"] == 36
+    assert [d["repetition"] for d in c["disagreements"]] == [0, 1, 2]
+    assert c["disagreements"][0]["all_runs"][0] == pytest.approx(1.2, abs=0.01)
+    table = calibration._cross_table([{"scene": "s"} | c] * 2, ("scene",))
+    assert table[-1].startswith("| all | 6 | 6/6 |") and "72/72" in table[-1]

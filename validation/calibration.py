@@ -158,13 +158,28 @@ def measure_sweep(repetitions: int = 24, cache: Path = CACHE) -> tuple[list[dict
     cross = []
     for scene in SWEEP_SCENES:
         side = {cell.renderer: d for cell, d in data.items() if cell.scene == scene}
-        report, mitsuba = side["report"], side["mitsuba"]
-        runs = [np.concatenate([x["test"], x["ref"]]) for x in (report, mitsuba)]
-        every = [np.repeat(runs[0], len(runs[1]), axis=0), np.tile(runs[1], (len(runs[0]), 1, 1, 1, 1))]
-        cross.append({"scene": scene, "n": len(report["test"]), "disagreements": _disagreements(report, mitsuba),
-                      "all_pairs": {"n": len(every[0])} | verdicts(*every)}
-                     | verdicts(report["test"], mitsuba["test"]))
+        cross.append({"scene": scene} | _cross(side["report"], side["mitsuba"]))
     return rows, cross
+
+
+def measure_check_cross(cells: list[Cell], cache: Path = CACHE) -> list[dict]:
+    """The branching estimator against Mitsuba in the check's configuration: each of `cells`' branching-estimator
+    cells against a Mitsuba cell of its own at REPORT_REFERENCE_SPP samples per camera ray, at the same depth."""
+    rows = []
+    for cell in tqdm([c for c in cells if c.renderer == "report"], desc="branching against Mitsuba", unit="cell"):
+        mitsuba = Cell(cell.scene, "mitsuba", cell.spp * REPORT_REFERENCE_SPP, cell.max_depth, cell.repetitions)
+        rows.append(asdict(cell) | _cross(run_cell(cell, cache), run_cell(mitsuba, cache)))
+    return rows
+
+
+def _cross(report: dict[str, np.ndarray], mitsuba: dict[str, np.ndarray]) -> dict:
+    """The branching estimator's cell against Mitsuba's: repetition by repetition (their test passes:
+    independent renders), every run against every run (each cell's test and ref passes: 2R x 2R pairs that
+    share runs), and the disagreements of the former."""
+    runs = [np.concatenate([x["test"], x["ref"]]) for x in (report, mitsuba)]
+    every = [np.repeat(runs[0], len(runs[1]), axis=0), np.tile(runs[1], (len(runs[0]), 1, 1, 1, 1))]
+    return ({"n": len(report["test"]), "disagreements": _disagreements(report, mitsuba),
+             "all_pairs": {"n": len(every[0])} | verdicts(*every)} | verdicts(report["test"], mitsuba["test"]))
 
 
 def _disagreements(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> list[dict]:
@@ -260,16 +275,7 @@ def _sweep_section(rows: list[dict], cross: list[dict]) -> list[str]:
     lines += ["", f"The comparison a report makes, the branching estimator ({SWEEP_REPORT_SPP} camera rays per pixel "
               f"and pass) against Mitsuba ({SWEEP_REPORT_SPP * REPORT_REFERENCE_SPP} spp per pass), each "
               "repetition's test passes of the two cells above (independent renders; a false alarm only if both "
-              "renderers are unbiased):", "",
-              "| scene | comparisons | " + " | ".join(f"alpha {a:g}" for a in ALPHAS) + " | every run against every "
-              "run, at " + " / ".join(f"{a:g}" for a in ALPHAS) + " |",
-              "|---|---:|" + "---|" * (len(ALPHAS) + 1)]
-    for r in cross:
-        lines.append(f"| {r['scene']} | {r['n']} | " + " | ".join(_rate(r, a) for a in ALPHAS) + " | "
-                     + " / ".join(_rate(r["all_pairs"], a) for a in ALPHAS) + " |")
-    lines += ["", "Every run against every run: each of the branching estimator's 2R runs (the cells' test and ref "
-              "passes) against each of Mitsuba's, R the repetitions; the pairs share runs, so their count is no "
-              "binomial sample, but their rate estimates the same false-alarm rate more finely than R pairs do."]
+              "renderers are unbiased):", ""] + _cross_table(cross, ("scene",)) + ["", EVERY_RUN]
     found = [(r["scene"], d) for r in cross for d in r["disagreements"]]
     if found:
         lines += ["", f"Each of these comparisons that disagrees at alpha {protocol.ALPHA:g}, at its most rejected "
@@ -281,6 +287,30 @@ def _sweep_section(rows: list[dict], cross: list[dict]) -> list[str]:
                   f"over all runs {d['all_runs'][0]:.4g} and {d['all_runs'][1]:.4g}, their passes' skewness "
                   f"{d['skewness'][0]:.2g} and {d['skewness'][1]:.2g}" for scene, d in found]
     return lines
+
+
+EVERY_RUN = ("Every run against every run: each of the branching estimator's 2R runs (the cells' test and ref "
+             "passes) against each of Mitsuba's, R the repetitions; the pairs share runs, so their count is no "
+             "binomial sample, but their rate estimates the same false-alarm rate more finely than R pairs do.")
+
+
+def _cross_table(rows: list[dict], keys: tuple[str, ...]) -> list[str]:
+    """The branching estimator against Mitsuba: a row per cell (`keys` name it), repetition by repetition at
+    each level of ALPHAS, then every run against every run."""
+    lines = ["| " + " | ".join(k.replace("_", " ") for k in keys) + " | comparisons | "
+             + " | ".join(f"alpha {a:g}" for a in ALPHAS) + " | every run against every run, at "
+             + " / ".join(f"{a:g}" for a in ALPHAS) + " |", "|" + "---|" * len(keys) + "---:|" + "---|" * (len(ALPHAS) + 1)]
+    pooled = [_pool(rows), _pool([r["all_pairs"] for r in rows])]
+    for r, label in [(r, [str(r[k]) for k in keys]) for r in rows] + [({**pooled[0], "all_pairs": pooled[1]},
+                                                                       ["all"] + [""] * (len(keys) - 1))]:
+        lines.append("| " + " | ".join(label) + f" | {r['n']} | " + " | ".join(_rate(r, a) for a in ALPHAS) + " | "
+                     + " / ".join(_rate(r["all_pairs"], a) for a in ALPHAS) + " |")
+    return lines
+
+
+def _pool(rows: list[dict]) -> dict:
+    """Counts (n, new_*, inconclusive_*) summed over rows."""
+    return {k: sum(r[k] for r in rows) for k in rows[0] if k == "n" or k.startswith(("new_", "inconclusive_"))}
 
 
 def _rate(row: dict, alpha: float) -> str:
@@ -315,11 +345,13 @@ def report(out: Path, repetitions: int = 12) -> Path:
     start = time.perf_counter()
     rows = measure(grid(repetitions))
     sweep_rows, cross = measure_sweep(2 * repetitions)
+    check_cross = measure_check_cross(grid(repetitions))
     cells = power.measure_all()
     seconds = [c.correct.seconds for c in cells]
     cold, warm = check_process_seconds()
     write_json([r | {"setting": "check"} for r in rows] + [r | {"setting": "sweep"} for r in sweep_rows]
-               + [r | {"setting": "sweep", "renderer": "report against mitsuba"} for r in cross], out.with_suffix(".json"))
+               + [r | {"setting": "sweep", "renderer": "report against mitsuba"} for r in cross]
+               + [r | {"setting": "check", "renderer": "report against mitsuba"} for r in check_cross], out.with_suffix(".json"))
     n = sum(r["n"] for r in rows)
     lines = [
         "# Calibration of `validate check`", "",
@@ -362,7 +394,13 @@ def report(out: Path, repetitions: int = 12) -> Path:
         "often the check was inconclusive:", ""] + _cell_table(rows, 1e-3) + [
         "", "The same at family-wise alpha 0.1, where a calibrated test rejects about one comparison in ten — a "
         "finer view of its level than 1e-3 gives with these counts:", ""] + _cell_table(rows, 0.1) + [
-        ""] + _sweep_section(sweep_rows, cross) + [
+        "", "## The branching estimator against Mitsuba", "",
+        "The null comparisons above pit each renderer against itself. A check of the branching estimator "
+        f"compares it with Mitsuba at {REPORT_REFERENCE_SPP} samples per pass per camera ray: each of its cells "
+        "above against a Mitsuba cell of its own at the same depth (rendered alike, R repetitions), repetition by "
+        "repetition (independent renders; a false alarm only if both renderers are unbiased):", ""] + \
+        _cross_table(check_cross, ("scene", "max_depth", "spp")) + ["", EVERY_RUN, ""] + \
+        _sweep_section(sweep_rows, cross) + [
         "", "## Power: injected faults", ""] + power.markdown(cells) + [
         "", "Each cell: the check's verdict on the faulty tracer / on the correct tracer, at that many Mitsuba "
         "samples per pass, without escalation (faults in validation/faults.py; the branching estimator renders "

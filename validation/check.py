@@ -7,7 +7,8 @@ scene's content); `stats.compare` decides `agree`, `disagree` or `inconclusive`.
 `max_spp`; what is still inconclusive then says what would settle it.
 
 The branching (report) estimator traces many rays per camera ray: its reference has REPORT_REFERENCE_SPP
-times its camera rays per pass, so that both sides' pass means are about as noisy.
+times its camera rays per pass, so that both sides' pass means are about as noisy; they are not as skewed,
+and that comparison disagrees on correct renders more often than alpha (reports/calibration.md).
 """
 from __future__ import annotations
 
