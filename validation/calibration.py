@@ -299,10 +299,10 @@ def _cross_table(rows: list[dict], keys: tuple[str, ...]) -> list[str]:
     each level of ALPHAS, then every run against every run."""
     lines = ["| " + " | ".join(k.replace("_", " ") for k in keys) + " | comparisons | "
              + " | ".join(f"alpha {a:g}" for a in ALPHAS) + " | every run against every run, at "
-             + " / ".join(f"{a:g}" for a in ALPHAS) + " |", "|" + "---|" * len(keys) + "---:|" + "---|" * (len(ALPHAS) + 1)]
-    pooled = [_pool(rows), _pool([r["all_pairs"] for r in rows])]
-    for r, label in [(r, [str(r[k]) for k in keys]) for r in rows] + [({**pooled[0], "all_pairs": pooled[1]},
-                                                                       ["all"] + [""] * (len(keys) - 1))]:
+             + " / ".join(f"{a:g}" for a in ALPHAS) + " |",
+             "|" + "---|" * len(keys) + "---:|" + "---|" * (len(ALPHAS) + 1)]
+    pooled = _pool(rows) | {"all_pairs": _pool([r["all_pairs"] for r in rows])}
+    for r, label in [(r, [str(r[k]) for k in keys]) for r in rows] + [(pooled, ["all"] + [""] * (len(keys) - 1))]:
         lines.append("| " + " | ".join(label) + f" | {r['n']} | " + " | ".join(_rate(r, a) for a in ALPHAS) + " | "
                      + " / ".join(_rate(r["all_pairs"], a) for a in ALPHAS) + " |")
     return lines
@@ -349,9 +349,10 @@ def report(out: Path, repetitions: int = 12) -> Path:
     cells = power.measure_all()
     seconds = [c.correct.seconds for c in cells]
     cold, warm = check_process_seconds()
+    against = {"renderer": "report against mitsuba"}
     write_json([r | {"setting": "check"} for r in rows] + [r | {"setting": "sweep"} for r in sweep_rows]
-               + [r | {"setting": "sweep", "renderer": "report against mitsuba"} for r in cross]
-               + [r | {"setting": "check", "renderer": "report against mitsuba"} for r in check_cross], out.with_suffix(".json"))
+               + [r | {"setting": "sweep"} | against for r in cross]
+               + [r | {"setting": "check"} | against for r in check_cross], out.with_suffix(".json"))
     n = sum(r["n"] for r in rows)
     lines = [
         "# Calibration of `validate check`", "",
@@ -369,7 +370,7 @@ def report(out: Path, repetitions: int = 12) -> Path:
         "branching estimator's passes are not skewed as Mitsuba's are: with 32 times fewer camera rays, where "
         "rare paths carry much of a block's light (a light's edge seen through few pixels, a caustic), its pass "
         "means are far more skewed than Mitsuba's, Welch's t is skewed with them, and the comparison disagrees "
-        "more often than alpha (measured in the scene reports' configuration below).",
+        "more often than alpha (measured below).",
         "- **Welch's t-test** per 4 x 4 block and channel and on the image mean per channel, Bonferroni-corrected "
         "(half of alpha to the blocks, half to the image means), family-wise alpha 1e-3 per check. Differences "
         "below 1e-5 of a block's mean are not resolved: that is float32 round-off (a constant sky seen directly "
