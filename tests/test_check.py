@@ -56,6 +56,27 @@ def test_a_rejection_decided_by_one_rare_pass_is_inconclusive():
     assert result.verdict == "inconclusive"
 
 
+def test_a_rejection_resting_on_a_few_distinct_pass_values_is_inconclusive():
+    """As the branching estimator's passes with one camera ray per pixel where a few pixels are lit: each pass
+    counts the rays that saw the light, and a run whose passes all counted alike has no variance."""
+    a, b = normal_passes(9, 1.0, 0.1), normal_passes(10, 1.0, 0.1)      # (the image means then agree)
+    a[:, 2, 2, 0] = 6.25                        # every pass the same count
+    b[:, 2, 2, 0] = np.random.default_rng(11).normal(6.6, 0.2, len(b))
+    result = compare(a, b, ALPHA)
+    assert result.rejected == 0 and result.untrusted_rejected == 1, result.summary()
+    assert result.verdict == "inconclusive"
+    a[:, 2, 2, 0] = np.random.default_rng(12).normal(6.25, 0.05, len(a))   # the same shift, values distinct
+    assert compare(a, b, ALPHA).verdict == "disagree"
+
+
+def test_two_constant_sides_that_differ_disagree():
+    """An emitter seen directly has no variance on either side: a wrong radiance there is a disagreement."""
+    a, b = normal_passes(13, 1.0, 0.01), normal_passes(14, 1.0, 0.01)
+    a[:, 1, 1, :], b[:, 1, 1, :] = 5.0, 5.1
+    result = compare(a, b, ALPHA)
+    assert result.verdict == "disagree" and result.rejected >= 1, result.summary()
+
+
 def test_black_images_agree_and_a_black_side_against_light_disagrees():
     black = np.zeros((16, 8, 8, 3))
     assert compare(black, black, ALPHA).verdict == "agree"

@@ -30,7 +30,7 @@ from .check import REPORT_REFERENCE_SPP
 from .renderers import MitsubaRenderer, TracerRenderer
 from .report import SWEEP_DEPTH, Config
 from .scenefile import plan
-from .stats import block_means, compare, welch_test
+from .stats import MIN_DISTINCT, MIN_NONZERO, block_means, compare, welch_test
 
 CACHE = Path(".cache/calibration")
 SCENES = {"room": "mitsuba_scenes/hexagon_room.xml", "caustic": "mitsuba_scenes/caustic.xml",
@@ -376,9 +376,11 @@ def report(out: Path, repetitions: int = 12) -> Path:
         "below 1e-5 of a block's mean are not resolved: that is float32 round-off (a constant sky seen directly "
         "has no variance, and two renderers' lookups differ by 5e-7).",
         "- **Inconclusive, not disagree**, where the normal approximation cannot be trusted: a rejected block "
-        "whose passes hold an outlier on either side (Grubbs' test at 1%) or whose mean rests on fewer than 4 "
-        "non-black passes. The check then repeats at 4x the samples per pass (up to 1024) and, if still "
-        "undecided, says how many samples would settle it.",
+        "whose passes hold an outlier on either side (Grubbs' test at 1%), whose mean rests on fewer than "
+        f"{MIN_NONZERO} non-black passes, or whose passes on one side take fewer than {MIN_DISTINCT} values "
+        "while the other side's vary (a count of rare events, as the camera rays of a pass that see a few lit "
+        "pixels). The check then repeats at 4x the samples per pass (up to 1024) and, if still undecided, says "
+        "how many samples would settle it.",
         "",
         f"## False alarms: {n} null comparisons", "",
         "A null comparison pits an unbiased renderer against itself with independent seeds, in the check's "

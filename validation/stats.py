@@ -7,10 +7,12 @@ Two tests on the same blocks (the passes averaged over block x block tiles, per 
   Hanika and Dachsbacher, JCGT 9(2), 2020), Bonferroni-corrected, on an equal-budget design: both sides
   have the same passes and samples per pass, so the skew of the two pass means cancels in their
   difference; the image means per channel are tested beside the blocks. Differences below
-  FLOAT_RESOLUTION of a block's mean (float32 round-off) are not resolved. A block whose passes hold an outlier on either side (Grubbs' test, Grubbs 1950) or whose
-  mean rests on fewer than MIN_NONZERO non-black passes is decided by a few rare samples; the normal
-  approximation is not trusted there, and a rejection there makes the verdict `inconclusive`, never
-  `disagree`.
+  FLOAT_RESOLUTION of a block's mean (float32 round-off) are not resolved. A block whose passes hold an
+  outlier on either side (Grubbs' test, Grubbs 1950), whose mean rests on fewer than MIN_NONZERO non-black
+  passes, or whose passes on one side take fewer than MIN_DISTINCT values while the other side's vary (a
+  count of rare events: the camera rays of a pass that see a small lit region) is decided by a few rare
+  samples; the normal approximation is not trusted there, and a rejection there makes the verdict
+  `inconclusive`, never `disagree`.
 - `welch_test` — the earlier test, kept for the calibration report's comparison: the same Welch test
   against any reference, with a `resolution` floor (a difference below `resolution` times the reference's
   mean radiance is never rejected).
@@ -24,6 +26,7 @@ from scipy import stats
 
 GRUBBS_ALPHA = 0.01   # level of the per-side outlier test that marks a block as untrusted
 MIN_NONZERO = 4       # a block's mean must rest on at least this many non-black passes of each side
+MIN_DISTINCT = 4      # and on at least this many distinct pass values, where the other side's vary
 FLOAT_RESOLUTION = 1e-5   # relative differences below this (about 100 float32 steps) are not resolved
 VERDICTS = ("agree", "disagree", "inconclusive")
 
@@ -119,6 +122,16 @@ def rare_sample_blocks(x: np.ndarray) -> np.ndarray:
     return (g > grubbs_critical(k)) | ((nonzero > 0) & (nonzero < MIN_NONZERO))
 
 
+def counted_blocks(x: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """(K, ...) pass means of one side and the other's -> bool (...): blocks where x's passes take fewer
+    than MIN_DISTINCT values while the other's vary by more than FLOAT_RESOLUTION (two constant sides, as an
+    emitter seen directly, are compared as they are)."""
+    ordered = np.sort(x, axis=0)
+    distinct = 1 + (ordered[1:] != ordered[:-1]).sum(0)
+    varies = other.max(0) - other.min(0) > FLOAT_RESOLUTION * np.abs(other).max(0)
+    return (distinct < MIN_DISTINCT) & varies
+
+
 def _welch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Welch's t and two-sided p of (K, ...) samples `a` against `b`, elementwise; elements without
     variance on either side get p = 1 if the means are equal, else p = 0."""
@@ -152,11 +165,11 @@ def compare(a: np.ndarray, b: np.ndarray, alpha: float) -> Comparison:
         raise ValueError("the comparison needs at least three passes of each renderer")
     t, p = _welch(a, b)
     rejected = (p < alpha / 2 / p.size) & resolved(a.mean(0) - b.mean(0), a.mean(0), b.mean(0))
-    trusted = ~(rare_sample_blocks(a) | rare_sample_blocks(b))
+    trusted = ~(rare_sample_blocks(a) | rare_sample_blocks(b) | counted_blocks(a, b) | counted_blocks(b, a))
     ga, gb = a.mean((1, 2)), b.mean((1, 2))          # (K, 3) image means of each pass
     _, p_image = _welch(ga, gb)
     image_rejected = (p_image < alpha / 2 / p_image.size) & resolved(ga.mean(0) - gb.mean(0), ga.mean(0), gb.mean(0))
-    image_trusted = ~(rare_sample_blocks(ga) | rare_sample_blocks(gb))
+    image_trusted = ~(rare_sample_blocks(ga) | rare_sample_blocks(gb) | counted_blocks(ga, gb) | counted_blocks(gb, ga))
     n_trusted = int((rejected & trusted).sum() + (image_rejected & image_trusted).sum())
     n_untrusted = int((rejected & ~trusted).sum() + (image_rejected & ~image_trusted).sum())
     verdict = "disagree" if n_trusted else "inconclusive" if n_untrusted else "agree"
