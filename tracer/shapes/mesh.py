@@ -46,12 +46,12 @@ class Mesh:
     name: str = ""
     uvs: np.ndarray | None = None        # per-vertex texture coordinates; None: a triangle's (b1, b2)
 
-    @property
+    @cached_property
     def triangle_areas(self) -> np.ndarray:
         v = self.vertices[self.faces]
         return 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
 
-    @property
+    @cached_property
     def area(self) -> float:
         return self.triangle_areas.sum()
 
@@ -171,6 +171,7 @@ class MeshSet(ShapeSet):
         self.bvh = self._bvh(source) if self.uses_bvh(self.count, bvh_threshold) else None
         self.corner_normals = Float(self._corner_normals().ravel())
         self.corner_uvs = None
+        self._emitter_tables: dict[int, tuple[Float, Float]] = {}
 
     @staticmethod
     def uses_bvh(triangles: int, bvh_threshold: int = BVH_THRESHOLD) -> bool:
@@ -309,18 +310,24 @@ class MeshSet(ShapeSet):
         return (dr.select(is_tri, c[0] * b0 + c[2] * b1 + c[4] * b2, u),
                 dr.select(is_tri, c[1] * b0 + c[3] * b1 + c[5] * b2, v))
 
+    def _emitter_table(self, m: Mesh) -> tuple[Float, Float]:
+        """An emitting mesh's cumulative triangle areas (normalised) and its triangles' corners, built on its
+        first light sample and kept: every bounce of every launch samples it."""
+        if id(m) not in self._emitter_tables:
+            areas = m.triangle_areas
+            self._emitter_tables[id(m)] = Float(np.cumsum(areas) / areas.sum()), Float(m.vertices[m.faces].ravel())
+        return self._emitter_tables[id(m)]
+
     def sample(self, m: Mesh, lo: int, u1: Float, u2: Float, geo) -> tuple[Array3f, Array3f, UInt32]:
         """A triangle chosen by area, then a point uniform on it (u1 reused: rescaled within the chosen
         triangle's share); the normal is the shading normal on smooth meshes."""
-        areas = m.triangle_areas
-        cdf = Float(np.cumsum(areas) / areas.sum())
-        tri = dr.binary_search(0, len(areas) - 1, lambda i: dr.gather(Float, cdf, i) <= u1)
+        cdf, corners = self._emitter_table(m)
+        tri = dr.binary_search(0, dr.width(cdf) - 1, lambda i: dr.gather(Float, cdf, i) <= u1)
         below = dr.select(tri > 0, dr.gather(Float, cdf, tri - 1, tri > 0), 0.0)
         above = dr.gather(Float, cdf, tri)
         u1 = dr.clip((u1 - below) / (above - below), 0.0, 1.0 - 2.0 ** -24)
         b1, b2 = square_to_uniform_triangle(u1, u2)
         prim = UInt32(lo) + tri
-        corners = Float(m.vertices[m.faces].ravel())
         v = [dr.gather(Array3f, corners, tri * 3 + c) for c in range(3)]
         y = v[0] * (1.0 - b1 - b2) + v[1] * b1 + v[2] * b2
         n = dr.gather(Array3f, geo.prim_normal, prim)
