@@ -179,3 +179,17 @@ def test_vertex_normals_are_the_plain_formulation():
     length = np.linalg.norm(out, axis=1, keepdims=True)
     expected = np.divide(out, length, out=np.zeros_like(out), where=length > 0)
     assert np.array_equal(vertex_normals(vertices, faces), expected)
+
+
+def test_a_mesh_light_of_no_area_renders_black_without_warnings():
+    """Its samples have infinite density (it emits no power, as in Mitsuba): no NaN from dividing by its area."""
+    import warnings
+
+    import tracer
+    from tracer.rendering import render
+
+    scene = tracer.load_scene(Path(__file__).resolve().parents[1] / "mitsuba_scenes/stress/zero_area_light.xml")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        image = render(scene, "path", spp=4, max_depth=3).image
+    assert not image.any()

@@ -311,7 +311,8 @@ class SceneGeometry:
         for e in self.emitters:
             shapes, (lo, _) = self._set_of(e)
             y, n, prim = shapes.sample(e, lo, u1, u2, self)
-            samples.append(LightSample(y, n, vec3(e.radiance), Float(1.0 / (n_lights * e.area)), prim))
+            pdf_area = 1.0 / (n_lights * e.area) if e.area > 0 else np.inf    # no area: no power
+            samples.append(LightSample(y, n, vec3(e.radiance), Float(pdf_area), prim))
         samples += [light.sample(n_lights, self.spots) for light in self.delta_lights]
         if self.has_environment:
             d = self.envmap.sample(u1, u2) if self.envmap is not None else square_to_uniform_sphere(u1, u2)

@@ -315,7 +315,9 @@ class MeshSet(ShapeSet):
         first light sample and kept: every bounce of every launch samples it."""
         if id(m) not in self._emitter_tables:
             areas = m.triangle_areas
-            self._emitter_tables[id(m)] = Float(np.cumsum(areas) / areas.sum()), Float(m.vertices[m.faces].ravel())
+            # a mesh of no area emits nothing (its samples' density is infinite): any points will do
+            cdf = np.cumsum(areas) / m.area if m.area > 0 else np.arange(1, len(areas) + 1) / len(areas)
+            self._emitter_tables[id(m)] = Float(cdf), Float(m.vertices[m.faces].ravel())
         return self._emitter_tables[id(m)]
 
     def sample(self, m: Mesh, lo: int, u1: Float, u2: Float, geo) -> tuple[Array3f, Array3f, UInt32]:
