@@ -361,16 +361,17 @@ def report(out: Path, repetitions: int = 12) -> Path:
         "validation/check.py.", "",
         "## Design", "",
         "- **Equal budgets.** The renderer under test and Mitsuba render the same number of passes "
-        f"({protocol.PASSES}) at the same samples per pass (the branching estimator: 32 Mitsuba samples per camera "
-        "ray). A pixel estimate in rendering is heavy-tailed (caustics, small lights): with few samples against "
+        f"({protocol.PASSES}) at the same samples per pass (the branching estimator: {REPORT_REFERENCE_SPP} Mitsuba "
+        "samples per camera ray). A pixel estimate in rendering is heavy-tailed (caustics, small lights): with few samples against "
         "a many-sample reference, the passes that missed the rare bright paths have both a low mean and a low "
         "variance, and Welch's t is then far from t-distributed on the dark side. With equal budgets the two "
         "pass means are skewed alike and their difference is symmetric, so the test keeps its level (Jung, "
         "Hanika and Dachsbacher 2020 compare renderers with Welch's test at low, equal sample counts). The "
-        "branching estimator's passes are not skewed as Mitsuba's are: with 32 times fewer camera rays, where "
-        "rare paths carry much of a block's light (a light's edge seen through few pixels, a caustic), its pass "
-        "means are far more skewed than Mitsuba's, Welch's t is skewed with them, and the comparison disagrees "
-        "more often than alpha (measured below).",
+        "branching estimator traces many rays per camera ray, and where few camera rays see a small bright "
+        "feature (a light's edge, its reflection), a side's pass means are skewed by how few they are: against "
+        "Mitsuba at 32 samples per camera ray its passes were far more skewed than Mitsuba's, Welch's t with "
+        "them, and the comparison disagreed on correct renders more often than alpha. Of 8, 16 and 32 samples "
+        f"per camera ray, {REPORT_REFERENCE_SPP} makes the two sides skewed most alike (measured below).",
         "- **Welch's t-test** per 4 x 4 block and channel and on the image mean per channel, Bonferroni-corrected "
         "(half of alpha to the blocks, half to the image means), family-wise alpha 1e-3 per check. Differences "
         "below 1e-5 of a block's mean are not resolved: that is float32 round-off (a constant sky seen directly "

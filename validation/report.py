@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from . import convergence, plots
+from .check import REPORT_REFERENCE_SPP
 from .provenance import environment, write_text
 from .references import Reference, reference
 from .sweep import RunSpec, image_path, sweep
@@ -181,10 +182,10 @@ def generate(scene_file: str | Path, out: Path | None = None, config: Config = C
     mitsuba_rows = [r for r in checked if r["estimator"] == "mitsuba"]
     tracer_rows = [r for r in checked if r["estimator"] != "mitsuba"]
     lines += ["", "The check: `validate check`'s test (validation/stats.py `compare`): each run's passes against as many "
-              "Mitsuba passes at the same samples per pass (the branching estimator: 32 per camera ray), Welch's test "
+              f"Mitsuba passes at the same samples per pass (the branching estimator: {REPORT_REFERENCE_SPP} per camera "
+              "ray), Welch's test "
               "per 4 x 4 block and channel and on the image mean, Bonferroni-corrected, family-wise alpha 1e-3: a "
-              "correct renderer disagrees in about one run in a thousand, the branching estimator (whose passes are "
-              "far more skewed than Mitsuba's) more often; the rates measured in this configuration "
+              "correct renderer disagrees in about one run in a thousand; the rates measured in this configuration "
               f"({config.passes} passes, {config.sweep_size} x {config.sweep_size}) are in reports/calibration.md. "
               f"Runs that disagree: the tracer's {_disagreeing(tracer_rows)}; Mitsuba against its own reference, "
               f"{_disagreeing(mitsuba_rows)}.", "",
