@@ -5,6 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from validation.check import REPORT_REFERENCE_SPP
+
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "mitsuba_scenes"
 os.environ.setdefault("TRACER_BVH_CACHE", "off")   # tests keep nothing in the user's cache folder
@@ -19,7 +21,8 @@ def mitsuba_passes(scene: str, passes: int, spp: int, **params) -> np.ndarray:
 
 
 PASSES, SIZE, SPP = 16, 32, 64                 # the plugin agreement tests' design: the check's equal budgets
-REPORT = dict(spp=2, direct=4, indirect=4)     # per pass, the branching estimator (against SPP Mitsuba samples)
+# per pass, the branching estimator: as many camera rays as the check gives it against SPP Mitsuba samples
+REPORT = dict(spp=SPP // REPORT_REFERENCE_SPP, direct=4, indirect=4)
 
 
 def plugin_passes(scene_name: str, estimator: str, max_depth: int, seed: int, edit=None) -> np.ndarray:
