@@ -408,7 +408,7 @@ def report(out: Path, repetitions: int = 12) -> Path:
         "", "## Power: injected faults", ""] + power.markdown(cells) + [
         "", "Each cell: the check's verdict on the faulty tracer / on the correct tracer, at that many Mitsuba "
         "samples per pass, without escalation (faults in validation/faults.py; the branching estimator renders "
-        "spp / 32 camera rays per pass, at least 1).", "",
+        f"spp / {REPORT_REFERENCE_SPP} camera rays per pass, at least 1).", "",
         "## Time per check", "",
         f"`validate check {SCENES['room']}` at its defaults (tracer path, 16 x 64 spp against Mitsuba's 16 x 64 "
         f"spp, 32 x 32), whole process: {cold:.1f} s with an empty reference cache, {warm:.1f} s with Mitsuba's "
