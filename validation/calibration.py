@@ -17,6 +17,7 @@ so the tables can be recomputed without rendering and an interrupted run resumes
 """
 from __future__ import annotations
 
+import itertools
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -176,10 +177,14 @@ def _cross(report: dict[str, np.ndarray], mitsuba: dict[str, np.ndarray]) -> dic
     """The branching estimator's cell against Mitsuba's: repetition by repetition (their test passes:
     independent renders), every run against every run (each cell's test and ref passes: 2R x 2R pairs that
     share runs), and the disagreements of the former."""
-    runs = [np.concatenate([x["test"], x["ref"]]) for x in (report, mitsuba)]
-    every = [np.repeat(runs[0], len(runs[1]), axis=0), np.tile(runs[1], (len(runs[0]), 1, 1, 1, 1))]
+    pairs = list(itertools.product(_runs(report), _runs(mitsuba)))    # views of the runs, not copies
     return ({"n": len(report["test"]), "disagreements": _disagreements(report, mitsuba),
-             "all_pairs": {"n": len(every[0])} | verdicts(*every)} | verdicts(report["test"], mitsuba["test"]))
+             "all_pairs": {"n": len(pairs)} | verdicts(*zip(*pairs))} | verdicts(report["test"], mitsuba["test"]))
+
+
+def _runs(data: dict[str, np.ndarray]) -> np.ndarray:
+    """A cell's runs: its test and ref passes (2R runs of independent seeds)."""
+    return np.concatenate([data["test"], data["ref"]])
 
 
 def _disagreements(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> list[dict]:
@@ -192,7 +197,7 @@ def _disagreements(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> list[d
         if c.verdict != "disagree":
             continue
         at = (slice(None), *c.worst_block)
-        every = [np.concatenate([x["test"], x["ref"]]).reshape(-1, *x["test"].shape[2:])[at] for x in (a, b)]
+        every = [_runs(x).reshape(-1, *x["test"].shape[2:])[at] for x in (a, b)]    # all their passes
         out.append({"repetition": r, "block": [int(i) for i in c.worst_block], "p": c.min_p,
                     "passes": [[float(x[at].mean()), float(x[at].std(ddof=1))] for x in (ta, tb)],
                     "all_runs": [float(x.mean()) for x in every], "skewness": [float(sps.skew(x)) for x in every]})
