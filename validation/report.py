@@ -183,8 +183,8 @@ def generate(scene_file: str | Path, out: Path | None = None, config: Config = C
     tracer_rows = [r for r in checked if r["estimator"] != "mitsuba"]
     lines += ["", "The check: `validate check`'s test (validation/stats.py `compare`): each run's passes against as many "
               f"Mitsuba passes at the same samples per pass (the branching estimator: {REPORT_REFERENCE_SPP} per camera "
-              "ray), Welch's test "
-              "per 4 x 4 block and channel and on the image mean, Bonferroni-corrected, family-wise alpha 1e-3: a "
+              "ray), Welch's test per 4 x 4 block and channel and on the image mean, Bonferroni-corrected, family-wise "
+              "alpha 1e-3: a "
               "correct renderer disagrees in about one run in a thousand; the rates measured in this configuration "
               f"({config.passes} passes, {config.sweep_size} x {config.sweep_size}) are in reports/calibration.md. "
               f"Runs that disagree: the tracer's {_disagreeing(tracer_rows)}; Mitsuba against its own reference, "
