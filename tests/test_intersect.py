@@ -37,7 +37,7 @@ def tri(o, d, v0, v1, v2, t_min=0.0, t_max=INF):
 def sphere(o, d, center, radius, leaving=False, t_min=0.0, t_max=INF) -> np.ndarray:
     n = len(np.atleast_2d(o))
     leave = Bool(np.broadcast_to(np.asarray(leaving, bool), (n,)).copy())
-    return ray_sphere(arr3(o), arr3(d), vec3(center), float(radius), t_min, t_max, leave).numpy()
+    return ray_sphere(arr3(o), arr3(d), vec3(center), float(radius) ** 2, t_min, t_max, leave).numpy()
 
 
 # ---- rectangle ---------------------------------------------------------------------------------------

@@ -21,7 +21,7 @@ from .lights.envmap import EnvmapKernel
 from .materials import MaterialTables
 from .sampling import square_to_uniform_sphere
 from .scene import Scene
-from .shapes import BVH_THRESHOLD, SETS, MeshSet, RectangleSet, ShapeSet
+from .shapes import BVH_THRESHOLD, SETS, MeshSet, RectangleSet, ShapeSet, SphereSet
 from .shapes.bvh import BATCHED_WALKS
 from .shapes.planar import inset_point
 
@@ -50,6 +50,11 @@ class Surface:
     prim: UInt32
     valid: Bool
     uv: tuple[Float, Float] | None = None   # texture coordinates, in scenes with textures only
+
+
+def uses_bvh(scene: Scene) -> bool:
+    """Whether a SceneGeometry of the scene (its default bvh_threshold) puts primitives into a BVH."""
+    return MeshSet.uses_bvh(scene.triangle_count) or SphereSet.uses_bvh(len(scene.of_kind(SphereSet.kind)))
 
 
 def goes_bounce_by_bounce(has_bvh: bool) -> bool:
@@ -98,6 +103,7 @@ class SceneGeometry:
             base += self.shape_sets[-1].count
         self.n_prims = base
         self.rectangles, self.meshes = (self._set(cls) for cls in (RectangleSet, MeshSet))
+        self.bvhs = [s.bvh for s in self.shape_sets if s.bvh is not None]   # walked after the unrolled tests
         self.curved_base = sum(s.count for s in self.shape_sets if s.planar)   # primitives below it are planar
         self.materials = MaterialTables(scene.bsdfs, material_kinds)
         self.emitters = scene.emitters
@@ -184,7 +190,7 @@ class SceneGeometry:
     @property
     def bounce_by_bounce(self) -> bool:
         """Whether the path tracer goes bounce by bounce, its BVH walks batched (integrators.path)."""
-        return goes_bounce_by_bounce(self.meshes.bvh is not None)
+        return goes_bounce_by_bounce(bool(self.bvhs))
 
     @contextmanager
     def batched(self):
@@ -222,9 +228,8 @@ class SceneGeometry:
             prim = dr.select(closer, i, prim)
             if u is not None:
                 b1, b2 = dr.select(closer, u, b1), dr.select(closer, v, b2)
-        if self.meshes.bvh is not None:
-            t_best, prim, b1, b2 = self.meshes.bvh.closest_hit(o, d, t_min, t_best, prim, b1, b2, skip,
-                                                                 self.batch)
+        for bvh in self.bvhs:
+            t_best, prim, b1, b2 = bvh.closest_hit(o, d, t_min, t_best, prim, b1, b2, skip, self.batch)
         return Hit(t_best, prim, b1, b2, self._hit_point(o, d, t_best, prim, b1, b2))
 
     def _hit_point(self, o, d, t, prim, b1, b2) -> Array3f:
@@ -253,8 +258,8 @@ class SceneGeometry:
         blocked = Bool(False)
         for i, t, _, _ in self._candidates(o, d, 0.0, skip, target, self.occluders):
             blocked |= t < dist
-        if self.meshes.bvh is not None:
-            blocked |= self.meshes.bvh.occluded(o, d, dist, skip, target, active & ~blocked, self.batch)
+        for bvh in self.bvhs:
+            blocked |= bvh.occluded(o, d, dist, skip, target, active & ~blocked, self.batch)
         return blocked
 
     # ---- surface data -----------------------------------------------------------------------------

@@ -13,12 +13,11 @@ import numpy as np
 from .errors import SettingsError
 from .estimators import BranchingEstimator, PathEstimator, integer, make_estimator
 from .film import FILTERS, Film, ReconstructionFilter
-from .geometry import SceneGeometry, goes_bounce_by_bounce
+from .geometry import SceneGeometry, goes_bounce_by_bounce, uses_bvh
 from .jit import BACKEND, PRECISION
 from .launch import seed_state
 from .plan import Plan, plan_render
 from .scene import Scene, SceneError
-from .shapes import MeshSet
 
 ESTIMATORS = (PathEstimator.name, BranchingEstimator.name)
 PASS_STREAM = 0x9A55_0000_0000     # random streams of passes after the first: (seed, PASS_STREAM, pass)
@@ -140,7 +139,7 @@ def make_plan(scene: Scene, spp: int, estimator: PathEstimator | BranchingEstima
     elif geometry is not None:
         extra = {"wavefront": geometry.bounce_by_bounce}
     else:
-        extra = {"wavefront": goes_bounce_by_bounce(MeshSet.uses_bvh(scene.triangle_count))}
+        extra = {"wavefront": goes_bounce_by_bounce(uses_bvh(scene))}
     return plan_render(width, height, spp, estimator.name, estimator.max_depth, border=border,
                        float_bytes=8 if PRECISION == "double" else 4, images=images,
                        max_pass_samples=width * height if one_spp_passes else None, **extra)

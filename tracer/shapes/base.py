@@ -38,6 +38,7 @@ class ShapeArgs:
 class ShapeSet:
     kind: type            # the host dataclass of the shapes it holds
     planar = False        # rectangles and triangles: hit points are kept inside by their frames (shapes.planar)
+    bvh = None            # a shapes.bvh.BVHKernel over the primitives that `candidates` leaves out
 
     def __init__(self, shapes: list, base: int):
         self.shapes, self.base = list(shapes), base

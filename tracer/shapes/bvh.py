@@ -177,9 +177,17 @@ def triangle_frames(v0: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> np.ndarra
 
 class BVHKernel:
     """The BVH's inner nodes and triangles on the device, and their traversal: the triangles' Layout
-    (built, or from shapes.bvh_cache) and triangle_frames; triangle ids are offset by `prim_base`."""
+    (built, or from shapes.bvh_cache) and triangle_frames; triangle ids are offset by `prim_base`. A BVH
+    over another kind of primitive is a subclass with its own leaf rows (`prims`) and their ray test
+    (`_primitive`)."""
 
     def __init__(self, tables: Layout, frames: np.ndarray, prim_base: int):
+        self._set_nodes(tables)
+        tris = leaf_rows(tables.order, prim_base, 12)    # rows (v0, prim, v1 - v0, 0, v2 - v0, 0)
+        tris.reshape(-1, 3, 4)[:, :, :3] = np.take(frames, tables.order, axis=0)
+        self.prims = Float(tris.ravel())
+
+    def _set_nodes(self, tables: Layout) -> None:
         self.grid = BoxGrid(*tables.root)
         self.rows = tables.rows
         self.nodes = host_array(UInt32, tables.nodes)
@@ -187,10 +195,6 @@ class BVHKernel:
         self.root = opaque_u32(int((tables.nodes[0, 3::4] != 0) @ (1 << np.arange(WIDTH))))
         self.root_words = [opaque_u32(int(w)) for w in tables.nodes[0]]
         self.stack_size = tables.stack_size
-        tris = aligned_zeros((len(frames), 12), HOST_FLOAT)   # rows (v0, prim, v1 - v0, 0, v2 - v0, 0)
-        tris.reshape(-1, 3, 4)[:, :, :3] = np.take(frames, tables.order, axis=0)
-        tris[:, 3] = (tables.order + prim_base).astype(_UINT).view(HOST_FLOAT)
-        self.tris = Float(tris.ravel())
 
     @classmethod
     def over(cls, tri_vertices: np.ndarray, prim_base: int) -> BVHKernel:
@@ -369,11 +373,11 @@ class BVHKernel:
             _walk_seconds[kind] = _walk_seconds.get(kind, 0.0) + time.perf_counter() - start
         return tuple(dr.select(walked, x, y) for x, y in zip(out, first))
 
-    def _triangle(self, slot, o, d, t_min, t_max, skip, target):
-        """The triangle in `slot`: (t, prim, b1, b2), t = inf if o + t d misses it in (t_min, t_max) or it is
-        `skip` or `target`."""
-        x = dr.gather(ArrayXf, self.tris, slot, shape=(12, dr.width(slot)))
-        prim = UInt32(dr.reinterpret_array(_UINT_JIT, x[3]))
+    def _primitive(self, slot, o, d, t_min, t_max, skip, target):
+        """The triangle in leaf slot `slot`: (t, prim, b1, b2), t = inf if o + t d misses it in (t_min,
+        t_max) or it is `skip` or `target`."""
+        x = dr.gather(ArrayXf, self.prims, slot, shape=(12, dr.width(slot)))
+        prim = leaf_prim(x)
         ok = prim != skip
         if target is not None:
             ok &= prim != target
@@ -387,7 +391,7 @@ class BVHKernel:
         arguments are then evaluated first), else in the caller's kernel (_walk)."""
         def visit_triangle(slot, ray, t_best, prim, b1, b2):
             o, d, t_min, skip = ray
-            t, tri_prim, u, v = self._triangle(slot, o, d, t_min, t_best, skip, None)
+            t, tri_prim, u, v = self._primitive(slot, o, d, t_min, t_best, skip, None)
             closer = t < t_best
             return (dr.select(closer, t, t_best), dr.select(closer, tri_prim, prim),
                     dr.select(closer, u, b1), dr.select(closer, v, b2))
@@ -402,7 +406,7 @@ class BVHKernel:
         not active (such lanes skip the traversal). `batch`: as in closest_hit."""
         def visit_triangle(slot, ray, blocked):
             o, d, dist, skip, target = ray
-            return (blocked | (self._triangle(slot, o, d, 0.0, dist, skip, target)[0] < dist),)
+            return (blocked | (self._primitive(slot, o, d, 0.0, dist, skip, target)[0] < dist),)
 
         walk = partial(self._walk_batch, kind="shadow") if batch else self._walk
         return walk((o, d, Float(dist), UInt32(skip), UInt32(target)), Bool(active), lambda ray, _: ray[2],
@@ -412,12 +416,25 @@ class BVHKernel:
         """Diagnostics: the rows tested (a row popped back counts again) and the triangles tested by each ray's
         closest-hit traversal (the same walk as closest_hit, counting)."""
         def visit_triangle(slot, ray, t_best):
-            return (dr.minimum(self._triangle(slot, ray[0], ray[1], 0.0, t_best, UInt32(0xFFFFFFFF), None)[0],
+            return (dr.minimum(self._primitive(slot, ray[0], ray[1], 0.0, t_best, UInt32(0xFFFFFFFF), None)[0],
                                t_best),)
 
         _, steps, tests = self._walk((o, d), Bool(True), lambda ray, t_best: t_best, visit_triangle,
                                      lambda *_: Bool(False), (Float(INF),), count_work=True)
         return steps, tests
+
+
+def leaf_rows(order: np.ndarray, prim_base: int, width: int) -> np.ndarray:
+    """(len(order), width) zeros on a cache line, for a BVH's leaf slots, with each slot's primitive id (its
+    `order` + prim_base) stored as the bits of the fourth value (leaf_prim reads it)."""
+    rows = aligned_zeros((len(order), width), HOST_FLOAT)
+    rows[:, 3] = (order + prim_base).astype(_UINT).view(HOST_FLOAT)
+    return rows
+
+
+def leaf_prim(x: list) -> UInt32:
+    """The primitive id of a leaf row gathered as values x (leaf_rows)."""
+    return UInt32(dr.reinterpret_array(_UINT_JIT, x[3]))
 
 
 @contextmanager

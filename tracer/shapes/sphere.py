@@ -1,4 +1,5 @@
-"""Mitsuba's `sphere`: the quadratic ray test, the outward normal, area sampling."""
+"""Mitsuba's `sphere`: the quadratic ray test, the outward normal, area sampling; many spheres in a BVH
+over their bounding boxes."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -8,14 +9,16 @@ import drjit as dr
 import numpy as np
 
 from .. import transform
-from ..jit import INF, Array3f, Bool, Float, UInt32, vec3
+from ..jit import HOST_FLOAT, INF, Array3f, ArrayXf, Bool, Float, UInt32, vec3
 from ..sampling import square_to_uniform_sphere
 from .base import ShapeArgs, ShapeSet
+from .bvh import BVHKernel, layout, leaf_prim, leaf_rows
 
 if TYPE_CHECKING:
     from ..materials import BSDF
 
 PLUGINS = {"sphere": ("center", "radius", "to_world", "flip_normals", "silhouette_sampling_weight")}
+BVH_THRESHOLD = 20   # spheres above which a BVH beats the unrolled tests (measured: see SphereSet.uses_bvh)
 
 
 @dataclass(eq=False)
@@ -53,8 +56,8 @@ def from_xml(ctx, props, a: ShapeArgs) -> Sphere:
     return Sphere(center, radius, a.bsdf, a.name, a.radiance)
 
 
-def ray_sphere(o: Array3f, d: Array3f, center, radius: float, t_min, t_max, leaving: Bool) -> Float:
-    """Nearest root of |o + t d - c|^2 = r^2 in (t_min, t_max), inf if none.
+def ray_sphere(o: Array3f, d: Array3f, center, r2, t_min, t_max, leaving: Bool) -> Float:
+    """Nearest root of |o + t d - c|^2 = r2 (the squared radius) in (t_min, t_max), inf if none.
 
     The discriminant is formed as r^2 - |oc - b d|^2 (Haines et al., Ray Tracing Gems ch. 7), which
     stays accurate far from the sphere. `leaving` marks rays that start on this sphere: they can only
@@ -63,8 +66,8 @@ def ray_sphere(o: Array3f, d: Array3f, center, radius: float, t_min, t_max, leav
     oc = o - center
     b = dr.dot(oc, d)
     perp = dr.fma(d, -b, oc)
-    disc = radius * radius - dr.squared_norm(perp)
-    c = dr.squared_norm(oc) - radius * radius
+    disc = r2 - dr.squared_norm(perp)
+    c = dr.squared_norm(oc) - r2
     q = -b - dr.copysign(dr.safe_sqrt(disc), b)   # numerically stable pair of roots: q and c / q
     r0, r1 = q, c / q
     t_near, t_far = dr.minimum(r0, r1), dr.maximum(r0, r1)
@@ -77,28 +80,70 @@ def ray_sphere(o: Array3f, d: Array3f, center, radius: float, t_min, t_max, leav
     return dr.select(disc >= 0, t, INF)
 
 
+class SphereBVH(BVHKernel):
+    """Spheres in a BVH over their bounding boxes (each box given to the build as the triangle of its
+    corners lo, hi, hi); a leaf slot's row holds the centre, the primitive id and the squared radius."""
+
+    def __init__(self, spheres: list[Sphere], prim_base: int):
+        center = np.array([s.center for s in spheres], float).reshape(-1, 3)
+        radius = np.array([s.radius for s in spheres], float)[:, None]
+        tables = layout(np.stack([center - radius, center + radius, center + radius], 1))
+        self._set_nodes(tables)
+        rows = leaf_rows(tables.order, prim_base, 8)     # (centre, prim, r^2, 0, 0, 0)
+        rows[:, :3], rows[:, 4] = center[tables.order], radius[tables.order, 0] ** 2
+        self.prims = Float(rows.ravel())
+
+    def _primitive(self, slot, o, d, t_min, t_max, skip, target):
+        """The sphere in leaf slot `slot`: (t, prim, 0, 0) as BVHKernel's, by ray_sphere."""
+        x = dr.gather(ArrayXf, self.prims, slot, shape=(8, dr.width(slot)))
+        prim = leaf_prim(x)
+        t = ray_sphere(o, d, Array3f(x[0], x[1], x[2]), x[4], t_min, t_max, prim == skip)
+        if target is not None:
+            t = dr.select(prim == target, INF, t)
+        return t, prim, Float(0), Float(0)
+
+
 class SphereSet(ShapeSet):
     kind = Sphere
+
+    def __init__(self, shapes: list[Sphere], base: int):
+        super().__init__(shapes, base)
+        if self.uses_bvh(self.count):
+            self.bvh = SphereBVH(self.shapes, base)
+            self.centers = Float(np.array([s.center for s in self.shapes], HOST_FLOAT).ravel())
+
+    @staticmethod
+    def uses_bvh(spheres: int) -> bool:
+        """Whether a SphereSet of this many spheres puts them into a BVH (above BVH_THRESHOLD). Measured on
+        the Cornell box's walls and light around small spheres, path, 256 x 256, 16 spp, median of 5
+        renders, unrolled against BVH: 0.193 against 0.223 s at 16 spheres, 0.243 against 0.229 s at 24,
+        0.278 against 0.207 s at 32; unrolled, every new count compiles its kernel anew (0.5 s at 24, 8 s
+        at 400 spheres), the BVH's kernel serves every count."""
+        return spheres > BVH_THRESHOLD
+
     def sides(self, p0: np.ndarray, n: np.ndarray) -> np.ndarray:
         return np.array([[(s.center - p0) @ n - s.radius, (s.center - p0) @ n + s.radius]
                          for s in self.shapes]).ravel()
 
     def describe(self) -> str:
-        return f"{self.count} spheres (quadratic)"
+        return f"{self.count} spheres (quadratic, {'in a BVH' if self.bvh is not None else 'brute force'})"
 
     def candidates(self, o, d, t_min, skip, target, only):
-        for k, s in enumerate(self.shapes):
+        for k, s in enumerate(self.shapes if self.bvh is None else ()):
             i = self.base + k
-            t = ray_sphere(o, d, vec3(s.center), s.radius, t_min, INF, skip == i)
+            t = ray_sphere(o, d, vec3(s.center), s.radius * s.radius, t_min, INF, skip == i)
             yield i, (t if target is None else dr.select(target == i, INF, t)), None, None
 
     def normal(self, prim: UInt32, p: Array3f, n: Array3f) -> Array3f:
         if not self.shapes:
             return n
         is_sphere = (prim >= self.base) & (prim < self.base + self.count)
-        center = vec3(self.shapes[0].center)
-        for k, s in enumerate(self.shapes[1:], 1):
-            center = dr.select(prim == self.base + k, vec3(s.center), center)
+        if self.bvh is not None:
+            center = dr.gather(Array3f, self.centers, prim - self.base, is_sphere)
+        else:
+            center = vec3(self.shapes[0].center)
+            for k, s in enumerate(self.shapes[1:], 1):
+                center = dr.select(prim == self.base + k, vec3(s.center), center)
         return dr.select(is_sphere, dr.normalize(p - center), n)  # unit even where p is off the surface
 
     def sample(self, s: Sphere, lo: int, u1: Float, u2: Float, geo) -> tuple[Array3f, Array3f, UInt32]:
