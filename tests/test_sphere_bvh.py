@@ -74,6 +74,7 @@ def test_a_bvh_with_wrong_radii_is_caught(tmp_path, monkeypatch):
 def test_describe_names_the_bvh(tmp_path, monkeypatch):
     scene = many_spheres(tmp_path)
     monkeypatch.setattr(sphere_module, "BVH_THRESHOLD", 20)
-    lines = SceneGeometry(scene).describe()
+    geometry = SceneGeometry(scene)
+    lines = geometry.describe()
     assert "40 spheres (quadratic, in a BVH)" in lines[0]
-    assert any("bounce by bounce" in line for line in lines) == SceneGeometry(scene).bounce_by_bounce
+    assert any("bounce by bounce" in line for line in lines) == geometry.bounce_by_bounce

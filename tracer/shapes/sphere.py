@@ -117,7 +117,7 @@ class SphereSet(ShapeSet):
         """Whether a SphereSet of this many spheres puts them into a BVH (above BVH_THRESHOLD). Measured on
         the Cornell box's walls and light around small spheres, path, 256 x 256, 16 spp, median of 5
         renders, unrolled against BVH: 0.193 against 0.223 s at 16 spheres, 0.243 against 0.229 s at 24,
-        0.278 against 0.207 s at 32; unrolled, every new count compiles its kernel anew (0.5 s at 24, 8 s
+        0.278 against 0.207 s at 32; unrolled, every new count compiles its kernel anew (0.5 s at 24, 5-8 s
         at 400 spheres), the BVH's kernel serves every count."""
         return spheres > BVH_THRESHOLD
 
