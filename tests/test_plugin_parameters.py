@@ -116,7 +116,8 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
     p = VALUES[param] if param else ""
     header, body = HEADER, ""
     if tag == "integrator":
-        body = f'<integrator type="{kind}">{p}</integrator>'
+        nested = '<integrator type="path"/>' if kind == "moment" else ""
+        body = f'<integrator type="{kind}">{p}{nested}</integrator>'
     elif tag == "sensor":
         header = HEADER.replace('<sensor type="perspective">', f'<sensor type="perspective">{p}')
     elif tag == "film" and param in ("width", "height"):
@@ -219,7 +220,7 @@ def _mitsuba_xml(tmp_path, tag: str, kind: str, param: str) -> str:
     files = {"obj": "a.obj", "ply": "a.ply", "serialized": "a.serialized", "envmap": "a.exr", "bitmap": "a.png"}
     extra = f'<string name="filename" value="{tmp_path / files[kind]}"/>' if kind in files else ""
     value = extra if param == "filename" else VALUES[param] + extra
-    value += {"twosided": '<bsdf type="diffuse"/>'}.get(kind, "")
+    value += {"twosided": '<bsdf type="diffuse"/>', "moment": '<integrator type="path"/>'}.get(kind, "")
     if tag == "sensor" and param == "fov_axis":
         value += '<float name="fov" value="40"/>'
     if kind == "conductor" and param in ("eta", "k"):

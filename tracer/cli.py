@@ -326,8 +326,10 @@ def _info(args) -> int:
         print("  parameters: none (the scene declares no <default>)")
     print(f"  camera: perspective, fov {cam.fov} ({cam.fov_axis}), {cam.width} x {cam.height}, "
           f"{cam.rfilter.describe()} filter")
-    print(f"  sampler: {scene.spp} spp, seed {scene.seed}; integrator: max_depth {scene.max_depth}, "
-          f"rr_depth {scene.rr_depth}")
+    print(f"  sampler: {scene.spp} spp, seed {scene.seed}; integrator: {scene.integrator}, "
+          f"max_depth {scene.max_depth}, rr_depth {scene.rr_depth}")
+    if scene.integrator != "path":
+        print("  (renders the nested path integrator's image; a moment's second-moment images are not written)")
     print(f"  ({DEPTH_NOTE})")
     print(f"  shapes: {len(scene.rectangles)} rectangles, {len(scene.meshes)} meshes "
           f"({scene.triangle_count} triangles), {len(scene.spheres)} spheres")

@@ -31,7 +31,7 @@ from .shapes.mesh import MeshFile, load as load_meshes
 from .spectra import rgb
 
 SUPPORTED = {
-    "integrator": ("path",),
+    "integrator": ("path", "moment"),
     "sensor": ("perspective",),
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian", "tent"),
@@ -53,6 +53,7 @@ MAX_INCLUDE_DEPTH = 32
 MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("integrator", "path"): ("max_depth", "rr_depth", "hide_emitters", "block_size", "samples_per_pass",
                              "timeout"),
+    ("integrator", "moment"): ("hide_emitters", "block_size", "samples_per_pass", "timeout"),
     ("sensor", "perspective"): ("to_world", "fov", "fov_axis", "focal_length", "near_clip", "far_clip",
                                 "focus_distance", "principal_point_offset_x", "principal_point_offset_y",
                                 "shutter_open", "shutter_close", "srf"),
@@ -542,6 +543,7 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
         seed=int(sampler.get("seed", 0)),
         max_depth=int(integrator.get("max_depth", -1)),
         rr_depth=int(integrator.get("rr_depth", 5)),
+        integrator=integrator.get("name", "path"),
         path=ctx.path,
     )
     for node in lights:
@@ -587,6 +589,8 @@ def _declared(ctx: _Context, node: Node) -> None:
 def _integrator(ctx: _Context, node: Node) -> dict:
     kind = _check_type(ctx, node)
     props = _Props(ctx, node, kind)
+    if kind == "moment":
+        return _moment(ctx, node, props)
     out = {"max_depth": props.get("max_depth", -1, ("integer",)), "rr_depth": props.get("rr_depth", 5, ("integer",)),
            "hide_emitters": props.get("hide_emitters", False, ("boolean",))}
     props.ignore("block_size", "samples_per_pass")        # how work is scheduled: not the estimate
@@ -597,7 +601,24 @@ def _integrator(ctx: _Context, node: Node) -> dict:
         raise ctx.error(node, f"max_depth must be -1 (unbounded) or >= 0, got {out['max_depth']}")
     if out["rr_depth"] < 1:
         raise ctx.error(node, f"rr_depth must be >= 1, got {out['rr_depth']}")
+    out["name"] = kind
     return out
+
+
+def _moment(ctx: _Context, node: Node, props: _Props) -> dict:
+    """Mitsuba's `moment`: its nested integrator's image plus the samples' second moment as extra images.
+    The image is the nested integrator's, so the tracer renders that one (the second moment is not written)."""
+    hide = props.get("hide_emitters", False, ("boolean",))
+    props.ignore("block_size", "samples_per_pass")
+    nested = props.children("integrator")
+    props.finish()
+    if hide:
+        raise ctx.error(props.values["hide_emitters"], "hide_emitters = true is not supported by the tracer")
+    if len(nested) != 1:
+        raise ctx.error(node, f"a moment integrator with {len(nested)} nested integrators; the tracer renders "
+                              "a moment around exactly one (its image is that integrator's)")
+    out = _integrator(ctx, nested[0])
+    return {**out, "name": f"moment around {out['name']}"}
 
 
 def _camera(ctx: _Context, node: Node) -> tuple[Camera, dict]:

@@ -59,6 +59,7 @@ class Scene:
     seed: int = 0
     max_depth: int = -1
     rr_depth: int = 5
+    integrator: str = "path"                      # the scene's integrator, e.g. "moment around path"
     lights: list = field(default_factory=list)    # of the kinds in tracer.lights (area lights: emitting shapes)
     path: Path | None = None
 
