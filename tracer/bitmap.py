@@ -31,13 +31,15 @@ def read_bitmap(path: Path, raw: bool) -> np.ndarray:
             return read_exr_rgb(path)
         except ImageError as e:
             raise BitmapError(str(e)) from None
-    from PIL import Image, UnidentifiedImageError
+    from PIL import Image
 
     try:
         with Image.open(path) as im:
             if im.mode not in ("RGB", "RGBA", "L", "LA", "P"):
                 raise BitmapError(f"{path}: pixel format {im.mode} unsupported; supported: 8-bit RGB, RGBA, grey")
             pixels = np.asarray(im.convert("RGB"), np.float64) / 255.0
-    except (OSError, UnidentifiedImageError) as e:
-        raise BitmapError(f"{path}: not a readable image ({e})") from None
+    except BitmapError:
+        raise
+    except Exception as e:   # whatever Pillow raises on a truncated or corrupted file (OSError, SyntaxError, ...)
+        raise BitmapError(f"{path}: not a readable image ({type(e).__name__}: {e})") from None
     return (pixels if raw else srgb_to_linear(pixels)).astype(np.float32)

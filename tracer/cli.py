@@ -18,7 +18,7 @@ import time
 import traceback
 from pathlib import Path
 
-from .errors import BackendError, OutputError, SettingsError, UserError
+from .errors import BackendError, OutputError, SettingsError, UserError, clip, shorten
 
 DEPTH_NOTE = ("max_depth counts path segments as Mitsuba does (1: lights seen directly, 2: direct light, "
               "-1: unbounded); the report's depth D is max_depth D + 2")
@@ -26,6 +26,7 @@ BACKEND_NOTE = ("The backend is CUDA where Dr.Jit finds a GPU, LLVM on the CPU o
                 "environment variable TRACER_BACKEND=llvm|cuda forces one, TRACER_PRECISION=double makes every "
                 "kernel compute in float64.")
 BUG_EXIT = 70  # EX_SOFTWARE
+INT32_MAX, UINT32_MAX = 2 ** 31 - 1, 2 ** 32 - 1    # Mitsuba's bounds of max_depth and of image sizes
 
 
 class _Version(argparse.Action):
@@ -69,19 +70,19 @@ def _parser() -> argparse.ArgumentParser:
                    "for path, 1 for report (the report's one ray per pixel)")
     r.add_argument("--seed", type=int, help="random seed in [0, 2^32); default: the scene's sampler seed")
     depth = r.add_mutually_exclusive_group()
-    depth.add_argument("--max-depth", type=int, help="Mitsuba's max_depth; default: the scene's integrator")
-    depth.add_argument("--report-depth", type=int, help="the report's depth D >= 0 (= max_depth D + 2)")
-    r.add_argument("--direct", "-N", type=int,
+    depth.add_argument("--max-depth", type=_int_in(high=INT32_MAX), help="Mitsuba's max_depth; default: the scene's integrator")
+    depth.add_argument("--report-depth", type=_int_in(high=INT32_MAX - 2), help="the report's depth D >= 0 (= max_depth D + 2)")
+    r.add_argument("--direct", "-N", type=_int_in(high=INT32_MAX),
                    help="report estimator: shadow rays per diffuse hit (eq. 10; default 16)")
-    r.add_argument("--indirect", "-M", type=int, help="report estimator: hemisphere rays per diffuse hit (eq. 11; "
+    r.add_argument("--indirect", "-M", type=_int_in(high=INT32_MAX), help="report estimator: hemisphere rays per diffuse hit (eq. 11; "
                    "default 8)")
     r.add_argument("--hemisphere", choices=("cosine", "uniform"),
                    help="report estimator: how eq. 11's directions are drawn (default cosine)")
     r.add_argument("--filter", metavar="box|gaussian|tent", help="pixel reconstruction filter, replacing the scene's "
                    "rfilter (Mitsuba's defaults: gaussian stddev 0.5, tent radius 1)")
     r.add_argument("--size", metavar="WxH", help="image size, replacing the scene film's width and height")
-    r.add_argument("--width", type=int, help="image width, replacing the scene film's")
-    r.add_argument("--height", type=int, help="image height, replacing the scene film's")
+    r.add_argument("--width", type=_int_in(high=UINT32_MAX), help="image width, replacing the scene film's")
+    r.add_argument("--height", type=_int_in(high=UINT32_MAX), help="image height, replacing the scene film's")
     r.add_argument("--time-limit", type=float, metavar="SECONDS", help="render one sample per pixel per pass and "
                    "stop after the last whole pass that fits in SECONDS (at most --spp); the spp rendered is "
                    "printed and stored in the EXR header")
@@ -92,7 +93,7 @@ def _parser() -> argparse.ArgumentParser:
                    "world-space normal (in [-1, 1]) of the first non-specular surface, through mirrors and glass")
     r.add_argument("--denoise", action="store_true", help="denoise with Intel Open Image Denoise, guided by the "
                    "AOVs: OUT.exr/.png are denoised, the noisy image is kept as OUT.noisy.exr, the AOVs are written")
-    r.add_argument("--aov-spp", type=int, default=8, help="samples per pixel of the AOVs (default 8)")
+    r.add_argument("--aov-spp", type=_int_in(high=UINT32_MAX), default=8, help="samples per pixel of the AOVs (default 8)")
     r.add_argument("--adaptive", action="store_true", help="path estimator: the same mean spp, half in a pilot "
                    "pass, the rest placed where the pilot's neighbourhood is noisy (unbiased; box filter)")
     r.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
@@ -136,14 +137,37 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("tracer: interrupted; no output written", file=sys.stderr)
         return 130
+    except BrokenPipeError:   # the reader of the output left (`tracer info SCENE | head`): not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())   # Python's exit flush has nowhere to fail
+        return 0
     except Exception as e:
         if _is_user_error(e):
-            print(f"tracer: error: {e if str(e) else type(e).__name__}", file=sys.stderr)
+            print(f"tracer: error: {_one_line(e)}", file=sys.stderr)
             return 1
         traceback.print_exc()
         print(f"tracer: internal error: the {type(e).__name__} above is a bug in the tracer, not a problem with "
               f"your input; please report it with the command line", file=sys.stderr)
         return BUG_EXIT
+
+
+def _one_line(e: BaseException) -> str:
+    """A user error's message with long values clipped; an OSError's as its file and reason."""
+    if isinstance(e, OSError) and not isinstance(e, UserError) and e.strerror:
+        text = f"{e.filename}: {e.strerror}" if e.filename else e.strerror
+    else:
+        text = str(e) or type(e).__name__
+    return "\n".join(shorten(line) for line in text.splitlines())
+
+
+def _int_in(high: int):
+    """An argparse type: an integer of at most `high` (lower bounds are checked with the other settings)."""
+    def parse(text: str) -> int:
+        value = int(text)
+        if value > high:
+            raise argparse.ArgumentTypeError(f"{clip(text)} exceeds {high}")
+        return value
+    parse.__name__ = "integer"
+    return parse
 
 
 def _use_backend(backend: str | None) -> None:
@@ -179,15 +203,17 @@ def _use_backend(backend: str | None) -> None:
 def _size(args) -> tuple[int | None, int | None]:
     width, height = args.width, args.height
     if args.size is not None:
-        m = re.fullmatch(r"(\d+)[xX](\d+)", args.size)
+        m = re.fullmatch(r"(\d{1,10})[xX](\d{1,10})", args.size)
         if not m:
-            raise SettingsError(f"--size {args.size}: expected WIDTHxHEIGHT, e.g. 640x480")
+            raise SettingsError(f"--size {clip(args.size)}: expected WIDTHxHEIGHT, e.g. 640x480")
         if width is not None or height is not None:
             raise SettingsError("--size replaces --width and --height: give one or the other")
         width, height = int(m[1]), int(m[2])
     for name, value in (("width", width), ("height", height)):
         if value is not None and value < 1:
             raise SettingsError(f"--{name} must be >= 1, got {value}")
+        if value is not None and value > UINT32_MAX:
+            raise SettingsError(f"--{name} must be at most {UINT32_MAX} (as Mitsuba's film), got {value}")
     return width, height
 
 

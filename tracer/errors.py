@@ -5,6 +5,8 @@ The loader's `SceneError` (tracer.scene) is the scene file's member of this fami
 """
 from __future__ import annotations
 
+import re
+
 
 class UserError(Exception):
     """A request the tracer refuses before (or instead of) doing the work; the message says why and what
@@ -25,3 +27,31 @@ class OutputError(UserError, OSError):
 
 class BackendError(UserError, RuntimeError):
     """Dr.Jit's backend is unavailable: no or too old an LLVM, CUDA without a GPU."""
+
+
+CLIP = 60            # characters of a quoted value in a message, beyond which its middle is left out
+LONG_WORD = 300      # characters of an unquoted word (a path) beyond which it is clipped too
+_LONG = re.compile(r"'[^'\n]{%d,}'|\"[^\"\n]{%d,}\"|[^\s'\"]{%d,}" % (CLIP + 1, CLIP + 1, LONG_WORD + 1))
+
+
+def clip(value: object, limit: int = CLIP) -> str:
+    """`value` as text, its middle left out when longer than `limit` (a 20,000-character value is not
+    repeated whole in a one-line error)."""
+    text = str(value)
+    if len(text) <= limit:
+        return text
+    keep = max(limit - 20, 10)
+    return f"{text[:keep]}...({len(text) - keep - 15:,} characters)...{text[-15:]}"
+
+
+def shorten(message: str, limit: int = 500) -> str:
+    """A message longer than `limit` with each long quoted value and each very long word clipped."""
+    if len(message) <= limit:
+        return message
+
+    def repl(m: re.Match) -> str:
+        text = m[0]
+        if text[0] in "'\"":
+            return text[0] + clip(text[1:-1]) + text[0]
+        return clip(text, LONG_WORD)
+    return _LONG.sub(repl, message)

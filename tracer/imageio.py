@@ -131,8 +131,12 @@ def read_exr_rgb(path: Path) -> np.ndarray:
     """An input image (an environment map, a texture) as (H, W, 3) float32: readable, finite, non-negative."""
     try:
         image = _rgb_pixels(path).astype(np.float32)
-    except (OSError, RuntimeError) as e:
-        raise ImageError(f"{path}: not a readable OpenEXR image ({e})") from None
+    except ImageError:
+        raise
+    except Exception as e:   # whatever OpenEXR raises on a truncated or corrupted file (RuntimeError, IndexError)
+        raise ImageError(f"{path}: not a readable OpenEXR image ({type(e).__name__}: {e})") from None
+    if image.ndim != 3 or not image.size:
+        raise ImageError(f"{path}: an OpenEXR image of no pixels")
     if not np.all(np.isfinite(image)) or np.any(image < 0):
         raise ImageError(f"{path}: pixels must be finite and non-negative")
     return image

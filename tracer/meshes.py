@@ -367,6 +367,7 @@ def _read_ply(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndar
             ply = PlyData.read(str(path), known_list_len={"face": {"vertex_indices": 3, "vertex_index": 3}})
         except PlyParseError:   # polygons, refused below, or a broken file, which this reports
             ply = PlyData.read(str(path))
+        _check_length(path, ply)
         vertex, face = ply["vertex"], ply["face"]
         names = vertex.data.dtype.names
         vertices = np.stack([np.asarray(vertex[k], float) for k in "xyz"], axis=1)
@@ -374,9 +375,11 @@ def _read_ply(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndar
             if all(k in names for k in ("nx", "ny", "nz")) else None
         index = "vertex_indices" if "vertex_indices" in face.data.dtype.names else "vertex_index"
         rows = face[index]
-    except (PlyParseError, KeyError, ValueError) as e:
-        raise MeshError(f"{path}: not a readable PLY mesh with vertex x, y, z and face vertex_indices ({e})") \
-            from None
+    except MeshError:
+        raise
+    except Exception as e:    # whatever plyfile raises on a malformed file (PlyParseError, ValueError, ...)
+        raise MeshError(f"{path}: not a readable PLY mesh with vertex x, y, z and face vertex_indices "
+                        f"({type(e).__name__}: {e})") from None
     if rows.dtype == object:    # a list per face (ASCII files, polygons)
         if any(len(r) != 3 for r in rows):
             raise MeshError(f"{path}: only triangular faces are supported (as in Mitsuba)")
@@ -397,3 +400,34 @@ def _read_ply(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndar
         if a is not None:
             a.flags.writeable = False
     return vertices, faces, normals
+
+
+def _check_length(path: Path, ply) -> None:
+    """Refuses data after the elements the header declares (a header that claims fewer faces than the file
+    holds would otherwise drop the rest silently): ASCII files by their lines, binary ones by their bytes."""
+    from plyfile import PlyListProperty
+
+    data = path.read_bytes()
+    end = data.find(b"end_header")
+    body = data[data.index(b"\n", end) + 1:]
+    declared = sum(len(e.data) for e in ply.elements)
+    if ply.text:
+        extra = len([line for line in body.splitlines() if line.strip()]) - declared
+        what = f"{extra} more lines"
+    else:
+        size = 0
+        for e in ply.elements:
+            for prop in e.properties:
+                if isinstance(prop, PlyListProperty):
+                    length, value = (np.dtype(t).itemsize for t in prop.list_dtype())
+                    column = e.data[prop.name]
+                    corners = column.size if column.dtype != object else sum(len(r) for r in column)
+                    size += len(e.data) * length + corners * value
+                else:
+                    size += len(e.data) * np.dtype(prop.dtype()).itemsize
+        extra = len(body) - size
+        what = f"{extra} more bytes"
+    if extra > 0:
+        counts = ", ".join(f"{len(e.data)} {e.name}" for e in ply.elements)
+        raise MeshError(f"{path}: the file holds {what} than its header declares ({counts}): a header that "
+                        "undercounts its elements")

@@ -19,6 +19,7 @@ from xml.parsers import expat
 import numpy as np
 
 from . import spectra, transform
+from .errors import clip, shorten
 from .film import ReconstructionFilter
 from .lights import PLUGINS as LIGHT_PLUGINS
 from .materials import BSDF, Bitmap, Checkerboard, textures
@@ -47,6 +48,22 @@ PROPERTY_TAGS = ("integer", "float", "boolean", "string", "rgb", "spectrum", "po
 COLOUR_TAGS = ("float", "integer", "rgb", "spectrum")
 TRANSFORM_OPS = ("translate", "scale", "rotate", "matrix", "lookat")
 MAX_INCLUDE_DEPTH = 32
+# The attributes Mitsuba's parser accepts on each element (it refuses any other as unexpected).
+ATTRIBUTES: dict[str, tuple[str, ...]] = {
+    "scene": ("version", "type", "id", "name"),
+    "default": ("name", "value"), "path": ("value",), "include": ("filename", "name"), "ref": ("id", "name"),
+    **{tag: ("type", "id", "name") for tag in PLUGIN_TAGS if tag != "spectrum"},
+    **{tag: ("name", "value") for tag in ("integer", "float", "boolean", "string", "rgb")},
+    "spectrum": ("name", "value", "filename", "type", "id"),
+    "point": ("name", "value", "x", "y", "z"), "vector": ("name", "value", "x", "y", "z"), "transform": ("name",),
+    "translate": ("value", "x", "y", "z"), "scale": ("value", "x", "y", "z"),
+    "rotate": ("value", "x", "y", "z", "angle"), "matrix": ("value",), "lookat": ("origin", "target", "up"),
+}
+# Integer properties are 32-bit in Mitsuba's plugins: these unsigned, the others signed (properties.h's bounds).
+UNSIGNED = ("sample_count", "seed", "width", "height", "crop_offset_x", "crop_offset_y", "crop_width",
+            "crop_height", "shape_index")
+INT32, UINT32, INT64 = (-2 ** 31, 2 ** 31 - 1), (0, 2 ** 32 - 1), (-2 ** 63, 2 ** 63 - 1)
+VERSION = re.compile(r"\s*[+-]?\d[^.]*")     # each of a version's three parts, as Mitsuba reads them
 
 # The parameters each supported plugin reads in Mitsuba 3 (its plugin source and documentation), so that a
 # parameter the tracer does not implement is refused as such rather than as a misspelling.
@@ -99,8 +116,8 @@ class _Context:
 
     def error(self, node: Node | None, message: str) -> SceneError:
         if node is None:
-            return SceneError(f"{self.path}: {message}")
-        return SceneError(f"{node.file or self.path}:{node.line}: <{node.tag}{_type_attr(node)}>: {message}")
+            return SceneError(shorten(f"{self.path}: {message}"))
+        return SceneError(shorten(f"{node.file or self.path}:{node.line}: <{node.tag}{_type_attr(node)}>: {message}"))
 
     def attr(self, node: Node, key: str, default: str | None = None) -> str:
         if key not in node.attrib:
@@ -131,13 +148,20 @@ class _Context:
         return (first or self.resolver[-1]) / p
 
     def attempt(self, build, *args, default=None):
-        """build(*args), recording a refusal instead of raising it, so that all are reported at once."""
+        """build(*args), recording a refusal instead of raising it, so that all are reported at once. A file
+        the element names that the system cannot look up (a name too long, a loop of links) is refused with
+        the element."""
         try:
             return build(*args)
         except _Reported:
             return default
         except SceneError as e:
             self.errors.append(str(e))
+            return default
+        except OSError as e:
+            node = next((a for a in args if isinstance(a, Node)), None)
+            name = f" '{e.filename}'" if e.filename else ""
+            self.errors.append(str(self.error(node, f"cannot look up file{name}: {e.strerror or e}")))
             return default
 
     def bsdf(self, node: Node) -> BSDF:
@@ -160,8 +184,8 @@ class _Context:
 
 
 def _type_attr(node: Node) -> str:
-    return f" type=\"{node.attrib['type']}\"" if "type" in node.attrib else (
-        f" name=\"{node.attrib['name']}\"" if "name" in node.attrib else "")
+    return f" type=\"{clip(node.attrib['type'])}\"" if "type" in node.attrib else (
+        f" name=\"{clip(node.attrib['name'])}\"" if "name" in node.attrib else "")
 
 
 def parse_tree(path: Path) -> Node:
@@ -197,7 +221,8 @@ def load_scene(path: str | Path, **overrides) -> Scene:
     ctx = _Context(path, {k: str(v) for k, v in overrides.items()})
     if root.tag != "scene":
         raise ctx.error(root, "the root element must be <scene>")
-    _expand(ctx, root, ctx.resolver, depth=0)
+    _check_element(ctx, root)
+    _expand(ctx, root, ctx.resolver, depth=0, top=True)
     if ctx.errors:
         raise SceneError("\n".join(ctx.errors))
     _collect_ids(ctx, root)
@@ -212,16 +237,20 @@ def load_scene(path: str | Path, **overrides) -> Scene:
 
 
 # ---- <default>, <path>, <include> ---------------------------------------------------------------------
-def _expand(ctx: _Context, node: Node, resolver: list[Path], depth: int) -> None:
+def _expand(ctx: _Context, node: Node, resolver: list[Path], depth: int, top: bool) -> None:
     """Processes `node`'s <default>, <path> and <include> children in document order: defaults declare
-    parameters, paths extend `resolver` (only as children of a file's <scene>), includes are replaced by
-    the included file's elements."""
+    parameters, paths extend `resolver` (only as children of a file's <scene>: `top`), includes are replaced
+    by the included file's elements (`depth`: how many includes deep `node` lies)."""
     children: list[Node] = []
     for child in node.children:
+        _check_element(ctx, child, node)
+        if child.tag in ("default", "path", "include"):
+            for inner in child.children:
+                _check_element(ctx, inner, child)
         if child.tag == "default":
             ctx.attempt(_default, ctx, child)
         elif child.tag == "path":
-            if depth < 0:
+            if not top:
                 ctx.errors.append(str(ctx.error(child, "<path> may only be a child of <scene>")))
             else:
                 ctx.attempt(_path, ctx, child, resolver)
@@ -229,9 +258,39 @@ def _expand(ctx: _Context, node: Node, resolver: list[Path], depth: int) -> None
             children += ctx.attempt(_include, ctx, child, node, resolver, depth, default=[])
         else:
             _check_declared(ctx, child)
-            _expand(ctx, child, resolver, -1)
+            _expand(ctx, child, resolver, depth, top=False)
             children.append(child)
     node.children = children
+
+
+def _check_element(ctx: _Context, node: Node, parent: Node | None = None) -> None:
+    """What Mitsuba's parser refuses of an element wherever it stands: an attribute it does not know, a
+    child inside a property (only a <transform> holds elements: its operations), a <scene> without a
+    version of three parts."""
+    allowed = ATTRIBUTES.get(node.tag, tuple(node.attrib)) + (("version",) if parent is None else ())  # a file's root
+    unknown = [a for a in node.attrib if a not in allowed]
+    if unknown:
+        ctx.errors.append(str(ctx.error(node, f"unexpected attribute '{unknown[0]}' (as Mitsuba); <{node.tag}> takes "
+                                              f"{', '.join(ATTRIBUTES[node.tag])}")))
+    if parent is not None and parent.tag in PROPERTY_TAGS + ("default", "path", "include", "ref") \
+            and parent.tag != "transform" and not (parent.tag == "spectrum" and "type" in parent.attrib):
+        ctx.errors.append(str(ctx.error(node, f"<{node.tag}> cannot be a child of <{parent.tag}> (line {parent.line}), "
+                                              "a property or directive (as in Mitsuba)")))
+    if node.tag in ("point", "vector", *TRANSFORM_OPS) and "value" in node.attrib \
+            and any(k in node.attrib for k in "xyz"):
+        ctx.errors.append(str(ctx.error(node, "cannot mix 'value' and 'x'/'y'/'z' attributes (as Mitsuba)")))
+    if node.tag == "scene" and parent is None and (problem := _version_problem(node)):
+        ctx.errors.append(str(ctx.error(node, problem)))
+
+
+def _version_problem(scene: Node) -> str:
+    """Why a <scene>'s version is one Mitsuba refuses, or ''."""
+    version = scene.attrib.get("version")
+    if version is None:
+        return "missing attribute 'version' (as Mitsuba: e.g. version=\"3.0.0\")"
+    if len(parts := version.split(".")) != 3 or not all(VERSION.match(p) for p in parts):
+        return f"invalid version '{version}' (as Mitsuba: major.minor.patch, e.g. 3.0.0)"
+    return ""
 
 
 def _check_declared(ctx: _Context, node: Node) -> None:
@@ -268,18 +327,25 @@ def _include(ctx: _Context, node: Node, parent: Node, resolver: list[Path], dept
     local = [node.file.parent] + resolver
     file = next((f / name for f in local if (f / name).is_file()), None) if not Path(name).is_absolute() \
         else Path(name)
+    folder = next((f / name for f in local if (f / name).is_dir()), None) if not Path(name).is_absolute() \
+        else Path(name)
+    if file is None and folder is not None and folder.is_dir():
+        raise ctx.error(node, f"included file '{name}' is a folder ({folder}), not a file")
     if file is None or not file.is_file():
         raise ctx.error(node, f"included file '{name}' not found (looked in {', '.join(map(str, local))})")
     try:
         root = parse_tree(file)
     except SceneError as e:
         raise ctx.error(node, f"while reading the included file: {e}") from None
+    if root.tag == "scene" and (problem := _version_problem(root)):
+        raise ctx.error(node, f"the included file {file}: {problem}")
+    _check_element(ctx, root)
     if root.tag != "scene":
         if "name" in node.attrib:
             root.attrib.setdefault("name", node.attrib["name"])
-        _expand(ctx, root, list(local), -1)
+        _expand(ctx, root, list(local), depth + 1, top=False)
         return [root]
-    _expand(ctx, root, list(local), depth + 1)
+    _expand(ctx, root, list(local), depth + 1, top=True)
     return root.children
 
 
@@ -329,7 +395,12 @@ class _Props:
             return default
         if tags is not None and child.tag not in tags:
             raise self.ctx.error(child, f"property '{name}' must be given as <{'> or <'.join(tags)}>")
-        return _property_value(self.ctx, child, self.emitter)
+        value = _property_value(self.ctx, child, self.emitter)
+        if child.tag == "integer" and tags == ("integer",):    # a plugin's integer parameter: 32 bits
+            lo, hi = UINT32 if name in UNSIGNED else INT32
+            if not lo <= value <= hi:
+                raise self.ctx.error(child, f"{name} = {value} is out of bounds [{lo}, {hi}] (as Mitsuba)")
+        return value
 
     def colour(self, name: str, default: float, unbounded: bool = False, textured: bool = False):
         """A reflectance, a radiance (on an emitter) or an `unbounded` quantity such as a conductor's eta:
@@ -411,11 +482,10 @@ def _property_value(ctx: _Context, node: Node, emitter: bool = False, unbounded:
         if value.lower() not in ("true", "false"):
             raise ctx.error(node, f"'{value}' is not a boolean (true or false)")
         return value.lower() == "true"
-    if tag == "integer":
-        try:
-            return int(value)
-        except ValueError:
-            raise ctx.error(node, f"'{value}' is not an integer") from None
+    if tag == "integer":    # as Mitsuba's parser: a 64-bit integer, digits with an optional minus
+        if not re.fullmatch(r"\s*-?[0-9]{1,19}\s*", value) or not INT64[0] <= int(value) <= INT64[1]:
+            raise ctx.error(node, f"'{value}' is not an integer (of 64 bits, as Mitsuba reads them)")
+        return int(value)
     if tag == "float":
         return _number(ctx, node, value)
     vec = _numbers(ctx, node, value)
@@ -428,6 +498,8 @@ def _property_value(ctx: _Context, node: Node, emitter: bool = False, unbounded:
 
 def _number(ctx: _Context, node: Node, text: str) -> float:
     try:
+        if "_" in text:     # Python reads 1_0 as 10; Mitsuba refuses it
+            raise ValueError(text)
         x = float(text)
     except ValueError:
         raise ctx.error(node, f"'{text}' is not a number") from None
@@ -626,6 +698,9 @@ def _camera(ctx: _Context, node: Node) -> tuple[Camera, dict]:
     props = _Props(ctx, node, kind)
     films = props.children("film")
     samplers = props.children("sampler")
+    for what, objects in (("film", films), ("sampler", samplers)):
+        if len(objects) > 1:
+            raise ctx.error(objects[1], f"a second {what} in a sensor (Mitsuba allows one)")
     film = ctx.built_once(films[0], lambda n: _film(ctx, n)) if films else dict(DEFAULT_FILM)
     sampler = ctx.built_once(samplers[0], lambda n: _sampler(ctx, n)) if samplers else {}
     w, h = film["width"], film["height"]
@@ -659,6 +734,10 @@ def _camera(ctx: _Context, node: Node) -> tuple[Camera, dict]:
         raise ctx.error(node, f"shutter_open ({shutter[0]}) must not exceed shutter_close ({shutter[1]}), as in Mitsuba")
     to_world = props.get("to_world", np.eye(4), ("transform",))
     props.finish()
+    linear = to_world[:3, :3]
+    if not (np.allclose(linear.T @ linear, np.eye(3), atol=1e-3) and np.allclose(linear @ linear.T, np.eye(3), atol=1e-3)):
+        raise ctx.error(props.values["to_world"], "a camera's to_world may not scale or shear (as Mitsuba): "
+                                                  "translate, rotate, lookat")
     camera = Camera(to_world, float(fov), fov_axis, float(near), float(far), w, h, film["rfilter"])
     return camera, sampler
 
@@ -667,6 +746,8 @@ def _film(ctx: _Context, node: Node) -> dict:
     kind = _check_type(ctx, node)
     props = _Props(ctx, node, kind)
     rfilters = props.children("rfilter")
+    if len(rfilters) > 1:
+        raise ctx.error(rfilters[1], "a second rfilter in a film (Mitsuba allows one)")
     rfilter = ctx.built_once(rfilters[0], lambda n: _rfilter(ctx, n)) if rfilters else ReconstructionFilter("gaussian")
     w, h = props.get("width", 768, ("integer",)), props.get("height", 576, ("integer",))
     if w < 1 or h < 1:

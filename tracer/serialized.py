@@ -42,18 +42,28 @@ def _read(path: Path, shape_index: int, size: int, mtime_ns: int):
         raise MeshError(f"{path}: not a serialized mesh (no 0x041C header)")
     if version not in (3, 4):
         raise MeshError(f"{path}: serialized format version {version} unsupported; supported: 3, 4")
-    count = struct.unpack_from("<I", data, len(data) - 4)[0]
-    if not 0 <= shape_index < count:
-        raise MeshError(f"{path}: shape_index {shape_index} out of range (the file holds {count} meshes)")
-    if version == 4:
-        offset = struct.unpack_from("<Q", data, len(data) - 4 - 8 * (count - shape_index))[0]
-    else:
-        offset = struct.unpack_from("<I", data, len(data) - 4 * (count - shape_index + 1))[0]
+    offset = _offset(path, data, version, shape_index) if shape_index else 0   # the first mesh: at 0, as Mitsuba
     try:
         body = zlib.decompressobj().decompress(data[offset + 4:])
         return _mesh(body, version, path)
     except (zlib.error, struct.error, ValueError) as e:
-        raise MeshError(f"{path}: corrupt serialized mesh {shape_index}: {e}") from None
+        raise MeshError(f"{path}: corrupt or truncated serialized mesh {shape_index} ({e})") from None
+
+
+def _offset(path: Path, data: bytes, version: int, shape_index: int) -> int:
+    """Where mesh `shape_index` starts, from the table at the file's end."""
+    count = struct.unpack_from("<I", data, len(data) - 4)[0]
+    entry = 8 if version == 4 else 4
+    if count * entry + 4 > len(data):
+        raise MeshError(f"{path}: corrupt or truncated serialized mesh (its table names {count} meshes, more than "
+                        f"the file's {len(data)} bytes can hold)")
+    if shape_index >= count:
+        raise MeshError(f"{path}: shape_index {shape_index} out of range (the file holds {count} meshes)")
+    offset = struct.unpack_from("<Q" if version == 4 else "<I", data, len(data) - 4 - entry * (count - shape_index))[0]
+    if offset + 4 > len(data) or data[offset:offset + 4] != data[:4]:
+        raise MeshError(f"{path}: corrupt or truncated serialized mesh (mesh {shape_index}'s offset {offset} "
+                        "points at no mesh header)")
+    return offset
 
 
 def _mesh(body: bytes, version: int, path: Path):
@@ -67,6 +77,8 @@ def _mesh(body: bytes, version: int, path: Path):
 
     def take(dtype, n):
         nonlocal pos
+        if pos + n * np.dtype(dtype).itemsize > len(body):
+            raise ValueError(f"the mesh's data ends early: {n_vertices} vertices and {n_faces} triangles announced")
         a = np.frombuffer(body, dtype, n, pos)
         pos += a.nbytes
         return a

@@ -15,6 +15,9 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+# modules of the `validation` extra (pyproject.toml), by the package that installs them
+EXTRA_MODULES = {"mitsuba": "mitsuba", "skimage": "scikit-image", "scipy": "scipy", "matplotlib": "matplotlib",
+                 "plotly": "plotly"}
 DEPTH_NOTE = ("max_depth counts path segments as Mitsuba does (2: direct light, -1: unbounded); "
               "the report's depth D is max_depth D + 2")
 
@@ -59,6 +62,19 @@ def _parser() -> argparse.ArgumentParser:
                        "with --against, exit 1 unless each image equals the earlier snapshot's to the bit")
     n.add_argument("folder", type=Path, metavar="DIR")
     n.add_argument("--against", type=Path, metavar="OLD", help="an earlier snapshot's folder")
+    z = sub.add_parser("fuzz", help="write reports/fuzz.md: N seeded mutants of the project's scenes, meshes, images "
+                       "and arguments through `tracer render`, each classified (exit 1 on a traceback, crash, hang, "
+                       "lost output or malformed error)")
+    z.add_argument("--n", type=int, default=1000, help="mutants (default 1000)")
+    z.add_argument("--seed", type=int, default=0)
+    z.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
+    z.add_argument("--command", choices=("render", "info"), default="render",
+                   help="what each mutant runs: `tracer render` at 8 x 8, 1 spp (default), or `tracer info`")
+    z.add_argument("--timeout", type=float, default=120.0, help="seconds a mutant may take before it is a hang")
+    z.add_argument("--no-mitsuba", action="store_true", help="skip the cross-check of rendered mutants against "
+                   "Mitsuba's loader")
+    z.add_argument("--save", action="store_true", help="keep each failing mutant under tests/data/fuzz")
+    z.add_argument("--output", "-o", type=Path, default=Path("reports/fuzz.md"))
     m = sub.add_parser("improvements", help="write reports/<scene>/improvements.md: filters, adaptive sampling, "
                        "denoising, each judged by its error against render time")
     m.add_argument("scene", type=Path)
@@ -266,6 +282,10 @@ def _run(args) -> int:
         return 0
     if args.command == "snapshot":
         return _snapshot(args)
+    if args.command == "fuzz":
+        from .fuzz import command_line
+
+        return command_line(args, "validate " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
     if args.command == "faults":
         from .power import table
 
@@ -299,6 +319,10 @@ def main(argv: list[str] | None = None) -> int:
             return 130
         if isinstance(e, (UserError, SceneError)):
             print(f"validate: error: {e}", file=sys.stderr)
+            return 2
+        if isinstance(e, ModuleNotFoundError) and (e.name or "").split(".")[0] in EXTRA_MODULES:
+            print(f"validate: error: the harness needs {EXTRA_MODULES[e.name.split('.')[0]]}, part of the validation "
+                  "extra: pip install 'tracer[validation]' (or: make setup)", file=sys.stderr)
             return 2
         if isinstance(e, OSError) and e.filename:
             print(f"validate: error: {e.filename}: {e.strerror}", file=sys.stderr)
