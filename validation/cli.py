@@ -68,7 +68,7 @@ def _parser() -> argparse.ArgumentParser:
     z.add_argument("--n", type=int, default=1000, help="mutants (default 1000)")
     z.add_argument("--seed", type=int, default=0)
     z.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
-    z.add_argument("--command", choices=("render", "info"), default="render",
+    z.add_argument("--command", dest="run", choices=("render", "info"), default="render",
                    help="what each mutant runs: `tracer render` at 8 x 8, 1 spp (default), or `tracer info`")
     z.add_argument("--timeout", type=float, default=120.0, help="seconds a mutant may take before it is a hang")
     z.add_argument("--no-mitsuba", action="store_true", help="skip the cross-check of rendered mutants against "
@@ -101,6 +101,8 @@ def _check_parser(sub) -> None:
     who.add_argument("--renderer", metavar="'CMD ...'", help="an external renderer: a command template with "
                      "{scene}, {output} (the EXR it must write), {spp}, {seed} and {defines} (-D name=value for "
                      "the film size, max_depth, spp and every -D given here)")
+    k.add_argument("--timeout", type=float, metavar="SECONDS", help="--renderer: the most one pass may take; a pass "
+                   "that takes longer is stopped and the check ends with exit 2 (default: no limit)")
     k.add_argument("--direct", "-N", type=int, default=16, help="report estimator: shadow rays per diffuse hit")
     k.add_argument("--indirect", "-M", type=int, default=8, help="report estimator: hemisphere rays per diffuse hit")
     depth = k.add_mutually_exclusive_group()
@@ -152,7 +154,9 @@ def _check(args) -> int:
     settings = Settings(passes=args.passes, spp=spp, seed=args.seed, alpha=args.alpha, size=args.size,
                         max_spp=args.max_spp)
     if args.renderer:
-        renderers = [ExternalRenderer(args.renderer)]
+        if args.timeout is not None and not args.timeout > 0:
+            raise ScenePlanError(f"--timeout must be a positive number of seconds, got {args.timeout}")
+        renderers = [ExternalRenderer(args.renderer, args.timeout)]
     else:
         renderers = [TracerRenderer(e, args.direct, args.indirect) for e in dict.fromkeys(args.estimator or ["path"])]
     depths = ([BranchingEstimator.from_report_depth(d).max_depth for d in args.report_depth] if args.report_depth

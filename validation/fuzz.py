@@ -123,7 +123,7 @@ def _structural(rng: random.Random, root: ET.Element, m: Mutant) -> None:
     e, parent = rng.choice(pairs)
     what = rng.choice(["delete", "duplicate", "move", "rename", "nest", "ref-dangling", "ref-kind", "self-include",
                        "include-missing", "include-folder", "version", "attribute", "default-include", "swap"])
-    m.mutations.append(f"{what} <{e.tag}{' ' + e.get('type') if e.get('type') else ''}>")
+    m.mutations.append(f"structural {what} <{e.tag}{' ' + e.get('type') if e.get('type') else ''}>")
     if what == "delete":
         parent.remove(e)
     elif what == "duplicate":
@@ -176,7 +176,7 @@ def _value(rng: random.Random, root: ET.Element, m: Mutant) -> None:
             t.clear()
             t.set("name", "to_world")
         t.append(ET.fromstring(op))
-        m.mutations.append(f"transform {op}")
+        m.mutations.append(f"value transform {op}")
         return
     key = rng.choice(list(e.attrib))
     if key in ("filename",) or (key == "value" and e.get("name") == "filename"):
@@ -186,7 +186,7 @@ def _value(rng: random.Random, root: ET.Element, m: Mutant) -> None:
     else:
         value = rng.choice(VALUES)
     e.set(key, value)
-    m.mutations.append(f"<{e.tag}> {key}={value[:20]!r}{'...' if len(value) > 20 else ''}")
+    m.mutations.append(f"value <{e.tag}> {key}={value[:20]!r}{'...' if len(value) > 20 else ''}")
 
 
 def _corrupt(rng: random.Random, data: bytes, name: str) -> tuple[bytes, str]:
@@ -240,7 +240,7 @@ def _file(rng: random.Random, root: ET.Element, m: Mutant, assets: dict[str, byt
 
 def _text(rng: random.Random, xml: bytes, m: Mutant) -> bytes:
     how = rng.choice(["truncate", "flip", "insert", "encoding", "entity"])
-    m.mutations.append(f"xml text: {how}")
+    m.mutations.append(f"text {how}")
     if how == "truncate":
         return xml[:rng.randrange(len(xml))]
     if how == "flip":
@@ -553,8 +553,11 @@ def report(outcomes: list[Outcome], n: int, seed: int, seconds: float, workers: 
                   f"{sum(bool(deliberate(o)) for o in refused_by_mitsuba)} deliberate differences (README):"]
     lines += [f"- {why} ({sum(deliberate(o) == why for o in refused_by_mitsuba)} mutants)" for _, why in DELIBERATE]
     kinds = Counter(mu.split(" ")[0] for o in outcomes for mu in o.mutations)
+    ops = Counter(" ".join(mu.split(" ")[:2]).rstrip(":") for o in outcomes for mu in o.mutations
+                  if mu.startswith(("structural", "file", "text")))
     lines += ["", "Mutations applied (a mutant holds one to three): " +
-              ", ".join(f"{k} {v:,}" for k, v in kinds.most_common()) + "."]
+              ", ".join(f"{k} {v:,}" for k, v in kinds.most_common()) + "; of which " +
+              ", ".join(f"{k} {v:,}" for k, v in sorted(ops.items())) + "."]
     scene_counts = Counter((o.seed_scene, o.kind) for o in outcomes)
     lines += ["", "| scene | rendered | user error | other |", "|---|---:|---:|---:|"]
     for s in sorted({o.seed_scene for o in outcomes}):
@@ -590,7 +593,7 @@ def command_line(args, command: str) -> int:
                   flush=True)
 
     mutants, outcomes, seconds = fuzz(args.n, args.seed, args.workers, args.timeout, not args.no_mitsuba, progress,
-                                      args.command)
+                                      args.run)
     if args.save:
         for m, o in zip(mutants, outcomes):
             if o.kind in FAILURES:

@@ -11,7 +11,10 @@ bases (validation.protocol) never share a stream.
 """
 from __future__ import annotations
 
+import contextlib
+import os
 import shlex
+import signal
 import subprocess
 import tempfile
 from dataclasses import dataclass
@@ -84,6 +87,7 @@ class MitsubaRenderer:
 @dataclass(frozen=True)
 class ExternalRenderer:
     template: str
+    timeout: float | None = None       # seconds a pass may take (--timeout); None: no limit
 
     def __post_init__(self):
         if "{output}" not in self.template:
@@ -105,25 +109,76 @@ class ExternalRenderer:
                                                 spp=spp, seed=seed, defines=defines))
 
     def passes(self, plan: ScenePlan, passes: int, spp: int, seed: int) -> np.ndarray:
-        from tracer.imageio import read_exr
-
+        """The passes, each checked: the command ran, ended in time with status 0, and wrote a readable
+        OpenEXR image of the plan's size with finite pixels. Anything else is a RendererError naming the pass;
+        what it wrote is removed with the temporary folder and never reaches a cache."""
         images = []
         with tempfile.TemporaryDirectory(prefix="validate-") as tmp:
             for k in range(passes):
                 output = Path(tmp) / f"pass{k}.exr"
-                argv = self.command(plan, output, spp, seed + k)
-                try:
-                    done = subprocess.run(argv, capture_output=True, text=True)
-                except OSError as e:
-                    raise RendererError(f"renderer command '{argv[0]}' could not run: {e.strerror}") from None
-                if done.returncode != 0:
-                    last = (done.stderr.strip() or done.stdout.strip() or "no output").splitlines()[-1]
-                    raise RendererError(f"renderer exited with status {done.returncode} on pass {k}: {last}")
-                if not output.is_file():
-                    raise RendererError(f"renderer exited 0 but wrote no {{output}} file ({' '.join(argv)})")
-                image = read_exr(output)
-                if image.shape[:2] != (plan.height, plan.width):
-                    raise RendererError(f"renderer wrote {image.shape[1]} x {image.shape[0]} pixels, the plan is "
-                                        f"{plan.width} x {plan.height} (it must honour -D width=... -D height=..., or check with --size native)")
-                images.append(image[..., :3].astype(np.float32))
+                self._run(self.command(plan, output, spp, seed + k), k)
+                images.append(_read_pass(output, plan, k))
         return np.stack(images)
+
+    def _run(self, argv: list[str], k: int) -> None:
+        """Runs pass k's command in a session of its own (so that a timeout ends its children too)."""
+        try:
+            proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                    errors="replace", start_new_session=True)
+        except OSError as e:
+            raise RendererError(f"renderer command '{argv[0]}' could not run: {e.strerror}") from None
+        try:
+            out, err = proc.communicate(timeout=self.timeout)
+        except subprocess.TimeoutExpired:
+            _kill_session(proc)
+            raise RendererError(f"renderer did not finish pass {k} within --timeout {self.timeout:g} s (stopped)") \
+                from None
+        except BaseException:
+            _kill_session(proc)
+            raise
+        if proc.returncode < 0:
+            raise RendererError(f"renderer was killed by signal {_signal_name(-proc.returncode)} on pass {k}")
+        if proc.returncode != 0:
+            last = (err.strip() or out.strip() or "no output").splitlines()[-1]
+            raise RendererError(f"renderer exited with status {proc.returncode} on pass {k}: {last[:300]}")
+
+
+def _kill_session(proc: subprocess.Popen) -> None:
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+
+
+def _signal_name(number: int) -> str:
+    try:
+        return signal.Signals(number).name
+    except ValueError:
+        return str(number)
+
+
+def _read_pass(output: Path, plan: ScenePlan, k: int) -> np.ndarray:
+    """Pass k's image as the renderer wrote it, refused in one line unless usable."""
+    from tracer.imageio import read_exr
+
+    if not output.is_file():
+        raise RendererError(f"renderer exited 0 but wrote no {{output}} file on pass {k}")
+    with output.open("rb") as f:
+        magic = f.read(8)
+    if magic.startswith(b"\x89PNG"):
+        raise RendererError(f"renderer wrote a PNG on pass {k}; {{output}} must be an OpenEXR image (linear radiance)")
+    if not magic.startswith(b"\x76\x2f\x31\x01"):
+        raise RendererError(f"renderer wrote a file on pass {k} that is not an OpenEXR image (no EXR magic number)")
+    try:
+        image = read_exr(output)
+    except Exception as e:     # whatever OpenEXR raises on a truncated or corrupted file
+        raise RendererError(f"renderer wrote an unreadable OpenEXR image on pass {k} ({type(e).__name__}: "
+                            f"{str(e)[:200]}); truncated?") from None
+    if image.ndim != 3 or image.shape[:2] != (plan.height, plan.width):
+        raise RendererError(f"renderer wrote {image.shape[1]} x {image.shape[0]} pixels on pass {k}, the plan is "
+                            f"{plan.width} x {plan.height} (it must honour -D width=... -D height=..., or check "
+                            "with --size native)")
+    bad = ~np.isfinite(image[..., :3])
+    if bad.any():
+        raise RendererError(f"renderer wrote {int(bad.any(axis=-1).sum())} pixels with NaN or infinite values on pass "
+                            f"{k}: a correct render has none")
+    return image[..., :3].astype(np.float32)

@@ -1,0 +1,108 @@
+"""`validate check` with a faulty renderer under test: one that hangs, crashes, exits 0 without writing, writes
+NaN or infinite pixels, the wrong size, a truncated EXR or a PNG. Each is refused in one line with exit 2 before
+Mitsuba's reference is rendered, so nothing reaches the reference cache; a damaged cache entry is rendered
+again (validation.references.load)."""
+from __future__ import annotations
+
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from validation import cli, references
+
+from .conftest import SCENES
+
+FAKE = textwrap.dedent('''
+    import os, signal, sys, time
+    import numpy as np
+    import OpenEXR
+    args = sys.argv[1:]
+    fault, output = args[0], args[args.index("-o") + 1]
+    size = dict(a.split("=") for a in args if "=" in a)
+    w, h = int(size["width"]), int(size["height"])
+    image = np.full((h, w, 3), 0.5, np.float32)
+    if fault == "hang":
+        time.sleep(600)
+    if fault == "crash":
+        os.kill(os.getpid(), signal.SIGSEGV)
+    if fault == "silent":
+        sys.exit(0)
+    if fault == "nan":
+        image[0, 0, 1] = np.nan
+    if fault == "inf":
+        image[1, 2, 0] = np.inf
+    if fault == "size":
+        image = image[:-1]
+    if fault == "png":
+        from PIL import Image
+        Image.fromarray((image * 255).astype(np.uint8)).save(output, format="PNG")
+        sys.exit(0)
+    with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION}, {"RGB": image}) as f:
+        f.write(output)
+    if fault == "truncated":
+        data = open(output, "rb").read()
+        open(output, "wb").write(data[:len(data) // 2])
+''')
+
+
+@pytest.mark.parametrize("fault, message", [
+    ("hang", "did not finish pass 0 within --timeout 3 s"),
+    ("crash", "killed by signal SIGSEGV on pass 0"),
+    ("silent", "exited 0 but wrote no {output} file on pass 0"),
+    ("nan", "1 pixels with NaN or infinite values on pass 0"),
+    ("inf", "1 pixels with NaN or infinite values on pass 0"),
+    ("size", "wrote 32 x 31 pixels on pass 0, the plan is 32 x 32"),
+    ("truncated", "unreadable OpenEXR image on pass 0"),
+    ("png", "wrote a PNG on pass 0"),
+])
+def test_a_faulty_renderer_is_refused_in_one_line(tmp_path, monkeypatch, capsys, fault, message):
+    monkeypatch.chdir(tmp_path)              # the reference cache is .cache/references under the working folder
+    script = tmp_path / "renderer.py"
+    script.write_text(FAKE)
+    command = f"{sys.executable} {script} {fault} {{scene}} -o {{output}} {{defines}}"
+    code = cli.main(["check", str(SCENES / "cornell_box.xml"), "--renderer", command, "--passes", "3",
+                     "--timeout", "3"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err.startswith("validate: error: ") and "\n" not in err, err
+    assert message in err, err
+    assert not (tmp_path / ".cache").exists()       # nothing rendered or cached for the reference
+
+
+def test_the_fake_renderer_itself_is_accepted(tmp_path, monkeypatch):
+    """The same renderer without a fault renders its passes (the cases above fail for their fault alone)."""
+    from validation.renderers import ExternalRenderer
+    from validation.scenefile import plan
+
+    script = tmp_path / "renderer.py"
+    script.write_text(FAKE)
+    renderer = ExternalRenderer(f"{sys.executable} {script} none {{scene}} -o {{output}} {{defines}}", timeout=60)
+    passes = renderer.passes(plan(SCENES / "cornell_box.xml", size=32), 2, 4, 0)
+    assert passes.shape == (2, 32, 32, 3) and np.all(passes == 0.5)
+
+
+def test_a_bad_timeout_is_refused(capsys):
+    assert cli.main(["check", str(SCENES / "cornell_box.xml"), "--renderer", "r {output}", "--timeout", "0"]) == 2
+    assert "--timeout must be a positive number" in capsys.readouterr().err
+
+
+def test_damaged_cache_entries_are_never_used(tmp_path):
+    """Bit flips and truncations anywhere in a cached reference: load gives the reference unchanged or None
+    (rendered again), never a wrong array and never an exception (zipfile raised NotImplementedError)."""
+    mean = np.random.default_rng(1).uniform(0, 1, (8, 8, 3)).astype(np.float32)
+    ref = references.Reference(mean, mean / 100, np.stack([mean[::4, ::4]] * 4), 64, 1.0, "k")
+    path = tmp_path / "ref.npz"
+    references.save(path, ref)
+    data = path.read_bytes()
+    rng = np.random.default_rng(2)
+    for i in range(600):
+        damaged = bytearray(data)
+        if i % 3 == 0:
+            damaged = damaged[:int(rng.integers(len(data)))]
+        else:
+            for at in rng.integers(0, len(data), int(rng.integers(1, 4))):
+                damaged[at] ^= 1 << int(rng.integers(8))
+        path.write_bytes(bytes(damaged))
+        loaded = references.load(path, "k")
+        assert loaded is None or (np.array_equal(loaded.mean, ref.mean) and np.array_equal(loaded.blocks, ref.blocks))
