@@ -172,6 +172,24 @@ def test_plugin_inside_a_property(tmp_path):
     refused(path, "<shape", "cannot be a child of <point>")
 
 
+@pytest.mark.parametrize("element", ['<default name="r" value="1"/>', '<include filename="missing.xml"/>',
+                                     '<float name="a" value="1"/>'])
+def test_directive_or_property_inside_a_transform(tmp_path, element):
+    path = write_scene(tmp_path, f'<shape type="sphere"><transform name="to_world">{element}</transform></shape>')
+    errors = scene_errors(path)      # the missing include is a second refusal
+    assert any("inside <transform>" in e and path.name in e for e in errors), errors
+    assert mitsuba_refuses(path)
+
+
+def test_self_include_inside_properties_is_a_cycle_not_a_hang(tmp_path):
+    """Two self-includes inside properties once expanded 2^32 times (found by the fuzzer: a hang)."""
+    path = write_scene(tmp_path, '<shape type="sphere"><float name="radius" value="1"><include filename="scene.xml"/>'
+                                 '</float><rgb name="x" value="1"><include filename="scene.xml"/></rgb></shape>')
+    errors = scene_errors(path)
+    assert any("includes itself (scene.xml -> scene.xml)" in e for e in errors), errors
+    assert mitsuba_refuses(path)
+
+
 def test_include_inside_a_default(tmp_path):
     path = write_scene(tmp_path, '<default name="a" value="1"><include filename="missing.xml"/></default>')
     refused(path, "<include", "cannot be a child of <default>")

@@ -82,7 +82,7 @@ def test_missing_include_and_path_are_located(tmp_path):
 def test_self_including_file_is_refused(tmp_path):
     path = write_scene(tmp_path, '<include filename="loop.xml"/>', name="loop.xml")
     (error,) = scene_errors(path)
-    assert "nested deeper" in error
+    assert "includes itself (loop.xml -> loop.xml)" in error
 
 
 # ---- top-level declarations and <ref> -----------------------------------------------------------------

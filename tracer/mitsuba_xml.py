@@ -48,6 +48,7 @@ PROPERTY_TAGS = ("integer", "float", "boolean", "string", "rgb", "spectrum", "po
 COLOUR_TAGS = ("float", "integer", "rgb", "spectrum")
 TRANSFORM_OPS = ("translate", "scale", "rotate", "matrix", "lookat")
 MAX_INCLUDE_DEPTH = 32
+MAX_INCLUDES = 10_000       # includes in one scene (each file may include several: the count can grow exponentially)
 # The attributes Mitsuba's parser accepts on each element (it refuses any other as unexpected).
 ATTRIBUTES: dict[str, tuple[str, ...]] = {
     "scene": ("version", "type", "id", "name"),
@@ -98,6 +99,7 @@ class Node:
     line: int
     children: list["Node"] = field(default_factory=list)
     file: Path | None = None
+    chain: tuple[Path, ...] = ()      # the files whose includes led here, this node's file last (resolved)
 
 
 class _Reported(SceneError):
@@ -113,6 +115,7 @@ class _Context:
         self.resolver = resolver if resolver is not None else [path.parent]
         self.errors: list[str] = []
         self.built: dict[int, object] = {}
+        self.includes = 0
 
     def error(self, node: Node | None, message: str) -> SceneError:
         if node is None:
@@ -188,14 +191,16 @@ def _type_attr(node: Node) -> str:
         f" name=\"{clip(node.attrib['name'])}\"" if "name" in node.attrib else "")
 
 
-def parse_tree(path: Path) -> Node:
-    """The XML file as a tree of Nodes that remember their file and line numbers."""
+def parse_tree(path: Path, included_by: tuple[Path, ...] = ()) -> Node:
+    """The XML file as a tree of Nodes that remember their file and line numbers (and the chain of files
+    whose includes led to it: `included_by`)."""
     stack: list[Node] = []
     root: list[Node] = []
     parser = expat.ParserCreate()
+    chain = included_by + (path.resolve(),)
 
     def start(tag, attrib):
-        node = Node(tag, dict(attrib), parser.CurrentLineNumber, file=path)
+        node = Node(tag, dict(attrib), parser.CurrentLineNumber, file=path, chain=chain)
         (stack[-1].children if stack else root).append(node)
         stack.append(node)
 
@@ -276,6 +281,9 @@ def _check_element(ctx: _Context, node: Node, parent: Node | None = None) -> Non
             and parent.tag != "transform" and not (parent.tag == "spectrum" and "type" in parent.attrib):
         ctx.errors.append(str(ctx.error(node, f"<{node.tag}> cannot be a child of <{parent.tag}> (line {parent.line}), "
                                               "a property or directive (as in Mitsuba)")))
+    if parent is not None and parent.tag == "transform" and node.tag not in TRANSFORM_OPS:
+        ctx.errors.append(str(ctx.error(node, f"unexpected <{node.tag}> inside <transform> (as Mitsuba); "
+                                              f"supported: {', '.join(TRANSFORM_OPS)}")))
     if node.tag in ("point", "vector", *TRANSFORM_OPS) and "value" in node.attrib \
             and any(k in node.attrib for k in "xyz"):
         ctx.errors.append(str(ctx.error(node, "cannot mix 'value' and 'x'/'y'/'z' attributes (as Mitsuba)")))
@@ -333,8 +341,13 @@ def _include(ctx: _Context, node: Node, parent: Node, resolver: list[Path], dept
         raise ctx.error(node, f"included file '{name}' is a folder ({folder}), not a file")
     if file is None or not file.is_file():
         raise ctx.error(node, f"included file '{name}' not found (looked in {', '.join(map(str, local))})")
+    if file.resolve() in node.chain:
+        raise ctx.error(node, f"'{name}' includes itself ({' -> '.join(p.name for p in node.chain + (file,))})")
+    ctx.includes += 1
+    if ctx.includes > MAX_INCLUDES:
+        raise ctx.error(node, f"more than {MAX_INCLUDES} includes in one scene")
     try:
-        root = parse_tree(file)
+        root = parse_tree(file, node.chain)
     except SceneError as e:
         raise ctx.error(node, f"while reading the included file: {e}") from None
     if root.tag == "scene" and (problem := _version_problem(root)):
