@@ -88,7 +88,7 @@ def test_exit_codes_json_and_junit(tmp_path):
     class Fake:
         def __init__(self, verdict):
             self.verdict, self.seconds, self.scene, self.renderer, self.max_depth = verdict, 1.0, "s.xml", "r", 3
-            self.note = ""
+            self.note, self.alpha, self.spp, self.passes, self.stage, self.stages = "", ALPHA, 64, 16, 1, 1
             self.comparison = compare(normal_passes(7), normal_passes(8), ALPHA)
 
         def line(self):
@@ -107,6 +107,8 @@ def test_exit_codes_json_and_junit(tmp_path):
     suite = ET.parse(tmp_path / "r.xml").getroot().find("testsuite")
     assert (suite.get("tests"), suite.get("failures"), suite.get("skipped")) == ("3", "1", "1")
     assert len(suite.findall("testcase/failure")) == 1
+    properties = {p.get("name"): p.get("value") for p in suite.find("testcase/properties")}
+    assert float(properties["detectable_bias_median_block"]) > 0 and properties["power"] == "0.8"
 
 
 def test_film_size_and_depth_override_any_scene(tmp_path):

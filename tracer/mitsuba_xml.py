@@ -232,13 +232,23 @@ def load_scene(path: str | Path, **overrides) -> Scene:
         raise SceneError("\n".join(ctx.errors))
     _collect_ids(ctx, root)
     scene = _build_scene(ctx, root)
-    unused = [k for k in overrides if k not in ctx.used]
+    used = ctx.used | _names_in(root)     # a parameter inside a refused element is used all the same
+    unused = [k for k in overrides if k not in used]
     if unused:
-        declared = ", ".join(sorted(n for n in ctx.params if n in ctx.used)) or "none"
+        declared = ", ".join(sorted(n for n in ctx.params if n in used)) or "none"
         ctx.errors.append(f"{path}: -D {unused[0]}: the scene uses no parameter of that name (it uses: {declared})")
     if ctx.errors:
         raise SceneError("\n".join(dict.fromkeys(ctx.errors)))
     return scene
+
+
+def _names_in(node: Node) -> set[str]:
+    """The parameters ($name) in the attributes of `node` and its descendants, <default>s aside."""
+    names = set() if node.tag == "default" else {
+        m for value in node.attrib.values() for m in re.findall(r"\$([A-Za-z_][A-Za-z0-9_]*)", value)}
+    for child in node.children:
+        names |= _names_in(child)
+    return names
 
 
 # ---- <default>, <path>, <include> ---------------------------------------------------------------------

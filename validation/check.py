@@ -2,9 +2,11 @@
 
 For each scene, estimator and depth: the renderer under test renders `passes` independent passes; Mitsuba
 renders the same number of passes at the same samples per pass (an equal-budget reference, cached by the
-scene's content); `stats.compare` decides `agree`, `disagree` or `inconclusive`. An inconclusive comparison
-(a rejection only in blocks decided by a few rare samples) is repeated at 4x the samples per pass, up to
-`max_spp`; what is still inconclusive then says what would settle it.
+scene's content); `stats.compare` decides `agree`, `disagree` or `inconclusive` (with a margin:
+`equivalent`, `disagree` or `inconclusive`). An inconclusive comparison (a rejection only in blocks decided
+by a few rare samples; with a margin, equivalence not yet shown) is repeated at 4x the samples per pass, up
+to `max_spp`, each stage at level alpha / stages; what is still inconclusive then says what would settle it.
+Every refusal (`prepare`) comes before the first pass.
 
 The branching (report) estimator traces many rays per camera ray: its reference has REPORT_REFERENCE_SPP
 times its camera rays per pass. Where few camera rays see a small bright feature, a side's pass means are
@@ -27,10 +29,10 @@ from . import protocol
 from .references import Reference, mitsuba_reference
 from .renderers import ExternalRenderer, TracerRenderer
 from .scenefile import ScenePlan, ScenePlanError, plan
-from .stats import Comparison, block_means, compare
+from .stats import POWER, Comparison, Margin, block_means, compare
 
 REPORT_REFERENCE_SPP = 8    # Mitsuba samples per pass per camera ray of the branching estimator
-EXIT_CODES = {"agree": 0, "disagree": 1, "inconclusive": 3}
+EXIT_CODES = {"agree": 0, "equivalent": 0, "disagree": 1, "inconclusive": 3}
 EXIT_USAGE = 2
 
 
@@ -42,6 +44,7 @@ class Settings:
     alpha: float = protocol.ALPHA
     size: int | None = protocol.SIZE
     max_spp: int = protocol.MAX_SPP
+    margin: Margin | None = None    # None: a test of difference only (agree / disagree / inconclusive)
 
     def __post_init__(self):
         for name, low in (("passes", 3), ("spp", 1), ("size", 4), ("max_spp", 1)):
@@ -68,26 +71,45 @@ class CheckResult:
     height: int
     comparison: Comparison = field(repr=False)
     note: str = ""
+    alpha: float = protocol.ALPHA   # the check's family-wise level, spent over its stages
+    stage: int = 1                  # the stage that decided (samples per pass x4 from one to the next)
+    stages: int = 1                 # the stages planned (spp to max_spp), each at level alpha / stages
+    spent_spp: int = 0              # samples per pixel each side rendered over all stages (passes x spp summed)
 
     def line(self) -> str:
         c = self.comparison
         r, col, ch = c.worst_block
+        margin = (f", margin {_pct(c.margin.image)} image mean, {_pct(c.margin.block)} block" if c.margin else "")
         return (f"{self.verdict:<12} {self.scene} [{self.renderer}, max_depth {self.max_depth}]: "
                 f"{c.rejected}/{c.tests + 3} tests rejected"
                 f"{f' (+{c.untrusted_rejected} decided by rare samples)' if c.untrusted_rejected else ''}, "
                 f"worst block ({r}, {col}) {'RGB'[ch]} p = {c.min_p:.2g}, image mean {c.relative_mean_difference:+.2%}; "
-                f"{self.passes} x {self.spp} spp vs Mitsuba {self.passes} x {self.reference_spp} spp, "
+                f"{c.detectable()}{margin}; "
+                f"{self.passes} x {self.spp} spp vs Mitsuba {self.passes} x {self.reference_spp} spp"
+                f"{f' (stage {self.stage} of {self.stages}, {self.spent_spp} spp in all)' if self.stages > 1 else ''}, "
                 f"{self.width} x {self.height}, {self.seconds:.1f} s" + (f"; {self.note}" if self.note else ""))
 
     def as_dict(self) -> dict:
         c = self.comparison
-        return {"scene": self.scene, "renderer": self.renderer, "max_depth": self.max_depth,
-                "verdict": self.verdict, "spp": self.spp, "reference_spp": self.reference_spp,
-                "passes": self.passes, "width": self.width, "height": self.height, "seconds": self.seconds,
-                "alpha": c.alpha, "tests": c.tests, "rejected": c.rejected,
-                "rejected_rare": c.untrusted_rejected, "min_p": c.min_p, "worst_block": list(c.worst_block),
-                "worst_t": c.worst_t, "mean": c.mean_test, "reference_mean": c.mean_reference,
-                "relative_mean_difference": c.relative_mean_difference, "note": self.note}
+        out = {"scene": self.scene, "renderer": self.renderer, "max_depth": self.max_depth,
+               "verdict": self.verdict, "spp": self.spp, "reference_spp": self.reference_spp,
+               "passes": self.passes, "width": self.width, "height": self.height, "seconds": self.seconds,
+               "alpha": self.alpha, "stage": self.stage, "stages": self.stages, "stage_alpha": c.alpha,
+               "spent_spp": self.spent_spp, "tests": c.tests, "rejected": c.rejected,
+               "rejected_rare": c.untrusted_rejected, "min_p": c.min_p, "worst_block": list(c.worst_block),
+               "worst_t": c.worst_t, "mean": c.mean_test, "reference_mean": c.mean_reference,
+               "relative_mean_difference": c.relative_mean_difference,
+               "detectable_bias": {"power": POWER, "image_mean": [float(x) for x in c.detectable_image],
+                                   "median_block": c.detectable_block}, "note": self.note}
+        if c.margin is not None:
+            out["equivalence"] = {"margin_image": c.margin.image, "margin_block": c.margin.block,
+                                  "image_means": [bool(x) for x in c.equivalent_image],
+                                  "blocks": int(c.equivalent_map.sum()), "spp_factor_needed": c.needed}
+        return out
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:g}%"
 
 
 def _branching(renderer) -> bool:
@@ -103,39 +125,87 @@ def default_spp(renderer) -> int:
     return protocol.REPORT_SPP if _branching(renderer) else protocol.SPP
 
 
+def stages(spp: int, max_spp: int) -> list[int]:
+    """The samples per pass of each stage: spp, then 4x at a time up to max_spp."""
+    out = [spp]
+    while out[-1] * 4 <= max_spp:
+        out.append(out[-1] * 4)
+    return out
+
+
 def check(scene_file: str | Path, renderer: TracerRenderer | ExternalRenderer, max_depth: int | None = None,
           defines: dict[str, str] | None = None, settings: Settings = Settings(),
           output: Path | None = None) -> CheckResult:
     """The verdict on one scene, renderer and depth (see the module's docstring). With `output`, a
     disagreeing or inconclusive check writes its images there (ours, reference, difference, blocks)."""
+    scene_plan = prepare(scene_file, renderer, max_depth, defines, settings)
+    return run(scene_plan, renderer, settings, output)
+
+
+def prepare(scene_file: str | Path, renderer: TracerRenderer | ExternalRenderer, max_depth: int | None = None,
+            defines: dict[str, str] | None = None, settings: Settings = Settings()) -> ScenePlan:
+    """The scene planned and every refusal of it made before anything renders: the scene as both renderers
+    will read it, the options, and the external renderer's command for the first pass."""
     scene_plan = plan(scene_file, defines, settings.size, max_depth)
     if _branching(renderer) and scene_plan.max_depth < 0:
         raise ScenePlanError("the branching (report) estimator needs a finite max_depth (--max-depth or "
-                         "--report-depth)")
-    spp = settings.spp or default_spp(renderer)
-    start = time.perf_counter()
-    while True:
-        ours = renderer.passes(scene_plan, settings.passes, spp, settings.seed)
-        ref = mitsuba_reference(scene_plan, settings.passes, reference_spp(renderer, spp))
-        comparison = compare(block_means(ours, protocol.BLOCK), ref.blocks, settings.alpha)
-        if comparison.verdict != "inconclusive" or spp * 4 > settings.max_spp:
+                             "--report-depth)")
+    scene_plan.mitsuba_xml()                        # Mitsuba's side: refuses an integrator it cannot compare
+    if isinstance(renderer, TracerRenderer):
+        scene_plan.tracer_scene()                   # the tracer's loader refuses what it does not honour
+    else:
+        renderer.command(scene_plan, Path("pass.exr"), settings.spp or default_spp(renderer), settings.seed)
+    return scene_plan
+
+
+def run(scene_plan: ScenePlan, renderer: TracerRenderer | ExternalRenderer, settings: Settings = Settings(),
+        output: Path | None = None) -> CheckResult:
+    """Renders and decides a prepared check: stage by stage, each at level alpha / stages (a Bonferroni
+    spending of the level over the stages planned: the family-wise error rates hold whichever stage
+    decides), the samples per pass 4x higher at each stage until the verdict is decided or max_spp reached.
+    Without a margin only an inconclusive verdict (a rejection resting on rare samples) goes on; with one,
+    any verdict but equivalent or disagree."""
+    plan_spp = stages(settings.spp or default_spp(renderer), settings.max_spp)
+    level = settings.alpha / len(plan_spp)
+    start, spent = time.perf_counter(), 0
+    for stage, spp in enumerate(plan_spp, 1):
+        ref = mitsuba_reference(scene_plan, settings.passes, reference_spp(renderer, spp))   # Mitsuba refuses first
+        ours = renderer.passes(scene_plan, settings.passes, spp, settings.seed + (stage - 1) * settings.passes)
+        comparison = compare(block_means(ours, protocol.BLOCK), ref.blocks, level, settings.margin)
+        spent += settings.passes * spp
+        if comparison.verdict != "inconclusive":
             break
-        spp *= 4
-    result = CheckResult(str(scene_file), renderer.label, scene_plan.max_depth, comparison.verdict, spp,
+    result = CheckResult(str(scene_plan.path), renderer.label, scene_plan.max_depth, comparison.verdict, spp,
                          reference_spp(renderer, spp), settings.passes, time.perf_counter() - start,
-                         scene_plan.width, scene_plan.height, comparison, _note(comparison, spp, settings, ours))
-    if output is not None and result.verdict != "agree":
+                         scene_plan.width, scene_plan.height, comparison, _note(comparison, spp, settings, ours),
+                         settings.alpha, stage, len(plan_spp), spent)
+    if output is not None and result.verdict not in ("agree", "equivalent"):
         write_images(output, scene_plan, result, ours.mean(0), ref)
     return result
 
 
 def _note(c: Comparison, spp: int, settings: Settings, ours: np.ndarray) -> str:
+    if c.verdict == "inconclusive" and c.margin is not None and not c.rejected:
+        if not np.isfinite(c.needed):
+            return ("a measured difference lies at or beyond its margin without being significant; more samples "
+                    f"per pass than {spp} would decide it")
+        need = _round_up(spp * c.needed)
+        return (f"not yet shown within the margin: about {need} spp per pass would decide it "
+                f"(--max-spp {max(need, settings.max_spp * 4)})")
     if c.verdict == "inconclusive":
         return (f"the rejected blocks are decided by a few rare samples; settle it with more than {spp} spp "
                 f"per pass (--spp {spp * 4} or --max-spp {max(spp * 4, settings.max_spp * 4)})")
+    if c.verdict == "equivalent" and c.rejected:
+        return "a difference was detected, within the margin"
     if c.mean_reference == 0 and not ours.any():
         return "both images are black"
     return ""
+
+
+def _round_up(spp: float) -> int:
+    """spp rounded up to two significant digits."""
+    digits = max(0, len(str(int(spp))) - 2)
+    return int(-(-spp // 10 ** digits) * 10 ** digits)
 
 
 def write_images(folder: Path, scene_plan: ScenePlan, result: CheckResult, ours: np.ndarray, ref: Reference) -> None:
@@ -196,8 +266,20 @@ def write_json(results: list[CheckResult], path: Path) -> None:
     write(path, {"exit_code": exit_code(results), "checks": [r.as_dict() for r in results]})
 
 
+def _properties(r: CheckResult) -> dict[str, str]:
+    """A JUnit test case's properties: the verdict, the bias it could have missed, the margin, the budget."""
+    c = r.comparison
+    out = {"verdict": r.verdict, "detectable_bias_image_mean_rgb": " ".join(f"{x:.4g}" for x in c.detectable_image),
+           "detectable_bias_median_block": f"{c.detectable_block:.4g}", "power": f"{POWER:g}", "alpha": f"{r.alpha:g}",
+           "spp_per_pass": str(r.spp), "passes": str(r.passes), "stage": f"{r.stage}/{r.stages}"}
+    if c.margin is not None:
+        out |= {"margin_image": f"{c.margin.image:g}", "margin_block": f"{c.margin.block:g}"}
+    return out
+
+
 def write_junit(results: list[CheckResult], path: Path) -> None:
-    """JUnit XML: one test case per scene x renderer x depth; disagree is a failure, inconclusive skipped."""
+    """JUnit XML: one test case per scene x renderer x depth; disagree is a failure, inconclusive skipped;
+    each case's properties carry the detectable bias and the margin."""
     suite = ET.Element("testsuite", name="validate check", tests=str(len(results)),
                        failures=str(sum(r.verdict == "disagree" for r in results)),
                        skipped=str(sum(r.verdict == "inconclusive" for r in results)),
@@ -209,6 +291,9 @@ def write_junit(results: list[CheckResult], path: Path) -> None:
             ET.SubElement(case, "failure", message=r.comparison.summary()).text = r.line()
         elif r.verdict == "inconclusive":
             ET.SubElement(case, "skipped", message=r.note or r.comparison.summary())
+        properties = ET.SubElement(case, "properties")
+        for name, value in _properties(r).items():
+            ET.SubElement(properties, "property", name=name, value=value)
         ET.SubElement(case, "system-out").text = r.line()
     root = ET.Element("testsuites")
     root.append(suite)

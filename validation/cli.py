@@ -121,6 +121,10 @@ def _check_parser(sub) -> None:
                    help="override a <default> of the scene; width, height, max_depth and spp (per pass) work on any scene")
     k.add_argument("--alpha", type=float, default=protocol.ALPHA, help="family-wise false-positive rate of one "
                    f"check (default {protocol.ALPHA:g})")
+    k.add_argument("--margin", type=_margin, nargs="+", metavar="PERCENT", help="test equivalence within this "
+                   "margin of the image mean (e.g. 1%%) and, optionally, a second margin per block (default "
+                   f"{protocol.BLOCK_MARGIN:.0%} of a block's mean or of the image mean where the block is darker): "
+                   "equivalent / disagree / inconclusive, raising the spp per pass until decided or --max-spp")
     k.add_argument("--json", type=Path, metavar="FILE", help="write the results as JSON")
     k.add_argument("--junit", type=Path, metavar="FILE", help="write JUnit XML (one test case per check)")
     k.add_argument("--output", "-o", type=Path, metavar="DIR", help="on disagree or inconclusive: ours, the "
@@ -137,13 +141,26 @@ def _size(text: str) -> int | None:
         raise argparse.ArgumentTypeError(f"expected a number of pixels or 'native', got '{text}'") from None
 
 
+def _margin(text: str) -> float:
+    """--margin: a percentage ('1%', '1') as a fraction."""
+    try:
+        value = float(text.removesuffix("%")) / 100
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a percentage such as 1%, got '{text}'") from None
+    if not 0 < value < 1:
+        raise argparse.ArgumentTypeError(f"a margin must lie strictly between 0% and 100%, got '{text}'")
+    return value
+
+
 def _check(args) -> int:
     from tracer.cli import parse_defines
     from tracer.estimators import BranchingEstimator
 
-    from .check import Settings, check, exit_code, write_json, write_junit
+    from . import protocol
+    from .check import Settings, exit_code, prepare, run, write_json, write_junit
     from .renderers import ExternalRenderer, TracerRenderer
     from .scenefile import ScenePlanError
+    from .stats import Margin
 
     defines = parse_defines(args.defines)
     spp = args.spp
@@ -151,8 +168,11 @@ def _check(args) -> int:
         if spp is not None:
             raise ScenePlanError("give the samples per pass once: --spp or -D spp, not both")
         spp = _integer_define(defines.pop("spp"))
+    if args.margin and len(args.margin) > 2:
+        raise ScenePlanError("--margin takes one or two percentages: the image mean's and the blocks'")
+    margin = Margin(args.margin[0], args.margin[1] if len(args.margin) > 1 else protocol.BLOCK_MARGIN) if args.margin else None
     settings = Settings(passes=args.passes, spp=spp, seed=args.seed, alpha=args.alpha, size=args.size,
-                        max_spp=args.max_spp)
+                        max_spp=args.max_spp, margin=margin)
     if args.renderer:
         if args.timeout is not None and not args.timeout > 0:
             raise ScenePlanError(f"--timeout must be a positive number of seconds, got {args.timeout}")
@@ -164,20 +184,21 @@ def _check(args) -> int:
     for scene in args.scenes:
         if not scene.is_file():
             raise ScenePlanError(f"scene file '{scene}' not found")
+    planned = [(prepare(scene, renderer, depth, defines, settings), renderer)   # every refusal before any pass
+               for scene in args.scenes for renderer in renderers for depth in depths]
     results = []
-    for scene in args.scenes:
-        for renderer in renderers:
-            for depth in depths:
-                result = check(scene, renderer, depth, defines, settings, args.output)
-                print(result.line(), flush=True)
-                results.append(result)
+    for scene_plan, renderer in planned:
+        result = run(scene_plan, renderer, settings, args.output)
+        print(result.line(), flush=True)
+        results.append(result)
     if args.json:
         write_json(results, args.json)
     if args.junit:
         write_junit(results, args.junit)
     code = exit_code(results)
     print(f"validate check: {len(results)} checks, " + ", ".join(
-        f"{sum(r.verdict == v for r in results)} {v}" for v in ("agree", "disagree", "inconclusive")) +
+        f"{sum(r.verdict == v for r in results)} {v}" for v in ("agree", "equivalent", "disagree", "inconclusive")
+        if v in ("disagree", "inconclusive") or any(r.verdict == v for r in results)) +
         f" (exit {code})")
     return code
 

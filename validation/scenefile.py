@@ -43,14 +43,17 @@ class ScenePlan:
             film = ET.SubElement(sensor, "film", {"type": "hdrfilm"})
         _set(film, "integer", "width", str(self.width))
         _set(film, "integer", "height", str(self.height))
-        integrator = root.find("integrator")
+        integrator = _integrator(root, self.params)
         if integrator is None:
             integrator = ET.Element("integrator", {"type": "path"})
             root.insert(0, integrator)
+        else:           # a `moment` wrapper (Mitsuba's render tests) replaced by the integrator it wraps
+            outer = root.find("integrator")
+            root[list(root).index(outer)] = integrator
         kind = _substitute(integrator.get("type", ""), self.params)
         if kind != "path":
-            raise ScenePlanError(f"{self.path}: <integrator type=\"{kind}\">: the comparison "
-                                 "uses Mitsuba's path integrator")
+            raise ScenePlanError(f"{self.path}: <integrator type=\"{kind}\">: the comparison uses Mitsuba's "
+                                 "path integrator (or a moment integrator wrapping it)")
         _set(integrator, "integer", "max_depth", str(self.max_depth))
         return ET.tostring(root, encoding="unicode")
 
@@ -223,8 +226,21 @@ def _film_size(root: ET.Element, params: dict[str, str], path: Path) -> tuple[in
             _integer(h, "height", path) if h is not None else MITSUBA_FILM[1])
 
 
+def _integrator(root: ET.Element, params: dict[str, str]) -> ET.Element | None:
+    """The scene's integrator; for Mitsuba's `moment` (which adds a second-moment image to the image of the
+    integrator it wraps), the wrapped one."""
+    node = root.find("integrator")
+    while node is not None and _substitute(node.get("type", ""), params) == "moment":
+        nested = node.findall("integrator")
+        if len(nested) != 1:
+            raise ScenePlanError(f"<integrator type=\"moment\"> wraps {len(nested)} integrators; the comparison "
+                                 "takes the image of exactly one")
+        node = nested[0]
+    return node
+
+
 def _scene_max_depth(root: ET.Element, params: dict[str, str], path: Path) -> int:
-    value = _value(root.find("integrator"), "max_depth", params)
+    value = _value(_integrator(root, params), "max_depth", params)
     return MITSUBA_MAX_DEPTH if value is None else _integer(value, "max_depth", path)
 
 

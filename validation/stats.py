@@ -12,7 +12,9 @@ Two tests on the same blocks (the passes averaged over block x block tiles, per 
   passes, or whose passes on one side take fewer than MIN_DISTINCT values while the other side's vary (a
   count of rare events: the camera rays of a pass that see a small lit region) is decided by a few rare
   samples; the normal approximation is not trusted there, and a rejection there makes the verdict
-  `inconclusive`, never `disagree`.
+  `inconclusive`, never `disagree`. Every comparison states its detectable bias (`detectable_bias`: the
+  bias its test finds with probability POWER), and with a `Margin` it tests equivalence (`tost`):
+  `equivalent`, `disagree` or `inconclusive`.
 - `welch_test` — the earlier test, kept for the calibration report's comparison: the same Welch test
   against any reference, with a `resolution` floor (a difference below `resolution` times the reference's
   mean radiance is never rejected).
@@ -28,7 +30,8 @@ GRUBBS_ALPHA = 0.01   # level of the per-side outlier test that marks a block as
 MIN_NONZERO = 4       # a block's mean must rest on at least this many non-black passes of each side
 MIN_DISTINCT = 4      # and on at least this many distinct pass values, where the other side's vary
 FLOAT_RESOLUTION = 1e-5   # relative differences below this (about 100 float32 steps) are not resolved
-VERDICTS = ("agree", "disagree", "inconclusive")
+POWER = 0.8               # the power at which a check states the bias it would have detected
+VERDICTS = ("agree", "equivalent", "disagree", "inconclusive")
 
 
 @dataclass
@@ -71,10 +74,25 @@ def welch_test(a: np.ndarray, b: np.ndarray, alpha: float = 0.01, block: int = 4
                          float(t[worst]))
 
 
+@dataclass(frozen=True)
+class Margin:
+    """An equivalence margin (GUIDE: TOST): `image`, a fraction of the reference's image mean, per channel;
+    `block`, a fraction of a block's reference mean, or of the image mean where the block is darker (so
+    that a dark block is held to an absolute tolerance, not to a fraction of almost nothing)."""
+    image: float
+    block: float
+
+    def __post_init__(self):
+        for name in ("image", "block"):
+            value = getattr(self, name)
+            if not 0 < value < 1:
+                raise ValueError(f"the {name} margin must lie strictly between 0 and 100%, got {value:.4g}")
+
+
 @dataclass
 class Comparison:
     """The outcome of `compare`: a verdict and the numbers behind it."""
-    verdict: str                  # agree | disagree | inconclusive
+    verdict: str                  # agree | disagree | inconclusive; with a margin: equivalent | disagree | inconclusive
     alpha: float                  # family-wise false-positive rate
     tests: int                    # blocks x channels
     rejected: int                 # rejected tests (blocks and image means) whose normal approximation is trusted
@@ -85,11 +103,17 @@ class Comparison:
     worst_t: float
     mean_test: float              # image means of the two sides
     mean_reference: float
-    p: np.ndarray = field(repr=False)          # (rows, columns, 3) p-values
-    rejected_map: np.ndarray = field(repr=False)   # (rows, columns, 3) bool
-    trusted: np.ndarray = field(repr=False)        # (rows, columns, 3) bool
-    p_image: np.ndarray = field(repr=False)        # (3,) p-values of the image means
-    image_rejected: np.ndarray = field(repr=False)   # (3,) bool
+    detectable_image: np.ndarray = field(repr=False)   # (3,) bias of the image mean detected with POWER, relative
+    detectable_block: float = float("nan")             # median over lit blocks and channels of the same, relative
+    margin: Margin | None = None
+    equivalent_image: np.ndarray | None = field(default=None, repr=False)   # (3,) TOST passed
+    equivalent_map: np.ndarray | None = field(default=None, repr=False)     # (rows, columns, 3) TOST passed
+    needed: float = float("nan")  # factor on the samples per pass at which every TOST would pass (inf: none)
+    p: np.ndarray = field(default=None, repr=False)          # (rows, columns, 3) p-values
+    rejected_map: np.ndarray = field(default=None, repr=False)   # (rows, columns, 3) bool
+    trusted: np.ndarray = field(default=None, repr=False)        # (rows, columns, 3) bool
+    p_image: np.ndarray = field(default=None, repr=False)        # (3,) p-values of the image means
+    image_rejected: np.ndarray = field(default=None, repr=False)   # (3,) bool
 
     @property
     def relative_mean_difference(self) -> float:
@@ -97,12 +121,25 @@ class Comparison:
         return (self.mean_test - self.mean_reference) / scale if scale > 0 else (0.0 if self.mean_test == 0
                                                                                    else float("inf"))
 
+    def detectable(self) -> str:
+        """The bias this comparison would have detected with POWER, as the verdict line states it."""
+        rgb = "/".join(_percent(x) for x in self.detectable_image)
+        return f"detectable bias ({POWER:.0%} power): image mean {rgb} (RGB), median block {_percent(self.detectable_block)}"
+
     def summary(self) -> str:
         r, c, ch = self.worst_block
+        within = (f"; within +-{_percent(self.margin.image)} (blocks +-{_percent(self.margin.block)}): "
+                  f"{int(self.equivalent_image.sum())}/3 image means, {int(self.equivalent_map.sum())}/{self.tests} "
+                  "blocks" if self.margin else "")
         return (f"{self.verdict}: {self.rejected}/{self.tests + 3} tests rejected"
                 f"{f' (+{self.untrusted_rejected} decided by rare samples)' if self.untrusted_rejected else ''}"
                 f" at family-wise alpha {self.alpha:g}; worst block ({r}, {c}) {'RGB'[ch]} p = {self.min_p:.3g}, "
-                f"t = {self.worst_t:.2f}; image mean {self.relative_mean_difference:+.2%} vs reference")
+                f"t = {self.worst_t:.2f}; image mean {self.relative_mean_difference:+.2%} vs reference; "
+                f"{self.detectable()}{within}")
+
+
+def _percent(x: float) -> str:
+    return "inf" if not np.isfinite(x) else f"{100 * x:.2g}%" if x < 0.1 else f"{100 * x:.0f}%"
 
 
 def grubbs_critical(k: int, alpha: float = GRUBBS_ALPHA) -> float:
@@ -118,8 +155,13 @@ def rare_sample_blocks(x: np.ndarray) -> np.ndarray:
     s = x.std(0, ddof=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         g = np.where(s > 0, np.abs(x - x.mean(0)).max(0) / s, 0.0)
+    return (g > grubbs_critical(k)) | sparse_blocks(x)
+
+
+def sparse_blocks(x: np.ndarray) -> np.ndarray:
+    """(K, ...) pass means -> bool (...): blocks lit in fewer than MIN_NONZERO passes (but in some)."""
     nonzero = (x != 0).sum(0)
-    return (g > grubbs_critical(k)) | ((nonzero > 0) & (nonzero < MIN_NONZERO))
+    return (nonzero > 0) & (nonzero < MIN_NONZERO)
 
 
 def counted_blocks(x: np.ndarray, other: np.ndarray) -> np.ndarray:
@@ -132,20 +174,65 @@ def counted_blocks(x: np.ndarray, other: np.ndarray) -> np.ndarray:
     return (distinct < MIN_DISTINCT) & varies
 
 
-def _welch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Welch's t and two-sided p of (K, ...) samples `a` against `b`, elementwise; elements without
-    variance on either side get p = 1 if the means are equal, else p = 0."""
+def _moments(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Means of (K, ...) samples `a` and `b`, the standard error of their difference and its
+    Welch-Satterthwaite degrees of freedom (NaN where neither side varies), elementwise."""
     ka, kb = len(a), len(b)
     ma, mb = a.mean(0), b.mean(0)
     va, vb = a.var(0, ddof=1) / ka, b.var(0, ddof=1) / kb
-    se2, diff = va + vb, ma - mb
+    se2 = va + vb
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = diff / np.sqrt(se2)
         df = se2 ** 2 / (va ** 2 / (ka - 1) + vb ** 2 / (kb - 1))
+    return ma, mb, np.sqrt(se2), df
+
+
+def _welch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Welch's t and two-sided p of (K, ...) samples `a` against `b`, elementwise; elements without
+    variance on either side get p = 1 if the means are equal, else p = 0."""
+    ma, mb, se, df = _moments(a, b)
+    diff = ma - mb
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = diff / se
         p = 2 * stats.t.sf(np.abs(t), df)
-    exact = se2 == 0
+    exact = se == 0
     equal = resolved(diff, ma, mb) == 0
     return np.where(exact, np.where(equal, 0.0, np.inf), t), np.where(exact, np.where(equal, 1.0, 0.0), p)
+
+
+def detectable_bias(se: np.ndarray, df: np.ndarray, level: float) -> np.ndarray:
+    """The smallest difference a two-sided Welch test at `level` detects with probability POWER:
+    (t_{1 - level/2} + t_{POWER}) x the standard error of the difference (the normal approximation of the
+    power of a t-test, e.g. Cohen 1988, ch. 2; GUIDE section 7), on the Welch degrees of freedom; 0 where
+    neither side varies."""
+    with np.errstate(invalid="ignore"):
+        q = stats.t.isf(level / 2, df) + stats.t.isf(1 - POWER, df)
+    return np.where(se > 0, q * se, 0.0)
+
+
+def tost(diff: np.ndarray, se: np.ndarray, df: np.ndarray, delta: np.ndarray, level: float,
+         exact: np.ndarray) -> np.ndarray:
+    """Two one-sided tests (Schuirmann 1987): where both "difference <= -delta" and "difference >= delta" are
+    rejected at `level`, i.e. |diff| + t_{1 - level} se < delta. Where neither side varies, `exact` (the
+    difference is below float resolution) or |diff| < delta decides."""
+    with np.errstate(invalid="ignore"):
+        bound = np.abs(diff) + stats.t.isf(level, df) * se
+    return np.where(se > 0, bound < delta, exact | (np.abs(diff) < delta))
+
+
+def samples_needed(diff: np.ndarray, se: np.ndarray, df: np.ndarray, delta: np.ndarray, level: float,
+                   equivalent: np.ndarray) -> float:
+    """The factor on the samples per pass at which every TOST not yet passed would pass, if each measured
+    difference were the true one (standard errors fall as 1/sqrt(samples)); inf where a difference lies at or
+    beyond its margin."""
+    todo = ~equivalent
+    if not todo.any():
+        return 1.0
+    room = delta[todo] - np.abs(diff[todo])
+    if (room <= 0).any():
+        return float("inf")
+    with np.errstate(invalid="ignore"):
+        q = np.nan_to_num(stats.t.isf(level, df[todo]), nan=stats.norm.isf(level))
+    return float(max(1.0, np.max((q * se[todo] / room) ** 2)))
 
 
 def resolved(diff: np.ndarray, ma: np.ndarray, mb: np.ndarray) -> np.ndarray:
@@ -155,30 +242,70 @@ def resolved(diff: np.ndarray, ma: np.ndarray, mb: np.ndarray) -> np.ndarray:
     return np.abs(diff) > FLOAT_RESOLUTION * np.maximum(np.abs(ma), np.abs(mb))
 
 
-def compare(a: np.ndarray, b: np.ndarray, alpha: float) -> Comparison:
+def compare(a: np.ndarray, b: np.ndarray, alpha: float, margin: Margin | None = None) -> Comparison:
     """Do block pass means `a` (K, rows, columns, 3), the renderer under test, and `b`, the reference,
     estimate the same image? See the module's docstring.
 
     Half of `alpha` goes to the blocks (Bonferroni over blocks and channels), half to the image means per
-    channel (a bias spread over the whole image, too small for any one block, shows there)."""
+    channel (a bias spread over the whole image, too small for any one block, shows there). With a `margin`,
+    the verdict is `equivalent` where the TOST passes at `alpha` on every image mean and every trusted
+    block: an intersection-union test, whose false-equivalence rate is at most `alpha` without any
+    correction for the number of tests (Berger 1982)."""
     if len(a) < 3 or len(b) < 3:
         raise ValueError("the comparison needs at least three passes of each renderer")
     t, p = _welch(a, b)
-    rejected = (p < alpha / 2 / p.size) & resolved(a.mean(0) - b.mean(0), a.mean(0), b.mean(0))
+    ma, mb, se, df = _moments(a, b)
+    block_level, image_level = alpha / 2 / p.size, alpha / 6
+    rejected = (p < block_level) & resolved(ma - mb, ma, mb)
     trusted = ~(rare_sample_blocks(a) | rare_sample_blocks(b) | counted_blocks(a, b) | counted_blocks(b, a))
     ga, gb = a.mean((1, 2)), b.mean((1, 2))          # (K, 3) image means of each pass
     _, p_image = _welch(ga, gb)
-    image_rejected = (p_image < alpha / 2 / p_image.size) & resolved(ga.mean(0) - gb.mean(0), ga.mean(0), gb.mean(0))
+    gma, gmb, gse, gdf = _moments(ga, gb)
+    image_rejected = (p_image < image_level) & resolved(gma - gmb, gma, gmb)
     image_trusted = ~(rare_sample_blocks(ga) | rare_sample_blocks(gb) | counted_blocks(ga, gb) | counted_blocks(gb, ga))
     n_trusted = int((rejected & trusted).sum() + (image_rejected & image_trusted).sum())
     n_untrusted = int((rejected & ~trusted).sum() + (image_rejected & ~image_trusted).sum())
     verdict = "disagree" if n_trusted else "inconclusive" if n_untrusted else "agree"
+    block_scale = np.maximum(np.abs(mb), np.abs(gmb))     # a block's mean, or the image mean where darker
+    detectable_image = _relative(detectable_bias(gse, gdf, image_level), np.abs(gmb))
+    lit = (a != 0).any(0) | (b != 0).any(0)          # blocks black on both sides tell nothing
+    detectable_block = float(np.median(_relative(detectable_bias(se, df, block_level), block_scale)[lit])) \
+        if lit.any() else 0.0
     worst = np.unravel_index(int(np.argmin(p)), p.shape)
-    return Comparison(verdict, alpha, p.size, n_trusted, n_untrusted, int((~trusted).sum()), float(p.min()),
-                      tuple(int(i) for i in worst), float(t[worst]), float(a.mean()), float(b.mean()),
-                      p, rejected, trusted, p_image, image_rejected)
+    result = Comparison(verdict, alpha, p.size, n_trusted, n_untrusted, int((~trusted).sum()), float(p.min()),
+                        tuple(int(i) for i in worst), float(t[worst]), float(a.mean()), float(b.mean()),
+                        detectable_image, detectable_block, margin, p=p,
+                        rejected_map=rejected, trusted=trusted, p_image=p_image, image_rejected=image_rejected)
+    if margin is not None:   # a block lit in a few passes, or counted, cannot be shown equivalent
+        image_decidable, decidable = (~(sparse_blocks(x) | sparse_blocks(y) | counted_blocks(x, y) | counted_blocks(y, x))
+                                      for x, y in ((ga, gb), (a, b)))
+        _equivalence(result, (gma - gmb, gse, gdf, margin.image * np.abs(gmb), image_decidable, resolved(gma - gmb, gma, gmb)),
+                     (ma - mb, se, df, margin.block * block_scale, decidable, resolved(ma - mb, ma, mb)))
+    return result
 
 
-def compare_passes(a: np.ndarray, b: np.ndarray, alpha: float, block: int = 4) -> Comparison:
+def _relative(x: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """x / scale, 0 where x is 0, inf where only the scale is."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(x == 0, 0.0, np.where(scale > 0, x / scale, np.inf))
+
+
+def _equivalence(c: Comparison, image: tuple, blocks: tuple) -> None:
+    """Sets c's TOST results, the samples that would decide it, and the verdict with a margin: equivalent
+    (every image mean and every block within its margin), else disagree (a difference detected), else
+    inconclusive."""
+    passed = []
+    for diff, se, df, delta, decidable, differs in (image, blocks):
+        passed.append(tost(diff, se, df, delta, c.alpha, ~differs) & decidable)
+    c.equivalent_image, c.equivalent_map = passed
+    c.needed = max(samples_needed(d, s, f, m, c.alpha, ok) for (d, s, f, m, _, _), ok in zip((image, blocks), passed))
+    if c.equivalent_image.all() and c.equivalent_map.all():
+        c.verdict = "equivalent"
+    elif c.verdict == "agree":
+        c.verdict = "inconclusive"
+
+
+def compare_passes(a: np.ndarray, b: np.ndarray, alpha: float, block: int = 4,
+                   margin: Margin | None = None) -> Comparison:
     """`compare` on (K, H, W, 3) passes, averaged over block x block tiles first."""
-    return compare(block_means(a, block), block_means(b, block), alpha)
+    return compare(block_means(a, block), block_means(b, block), alpha, margin)

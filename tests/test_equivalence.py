@@ -1,0 +1,151 @@
+"""What "agree" means: the bias a comparison could have missed (its detectable bias), equivalence within a
+margin (TOST), the stages of a sequential check, and checks on Mitsuba's own render-test scenes (a `moment`
+integrator, refusals before any pass)."""
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from tracer.scene import SceneError
+from validation import cli
+from validation.check import stages
+from validation.scenefile import plan
+from validation.stats import POWER, Margin, compare
+
+from .conftest import ROOT, SCENES
+
+MITSUBA_DATA = Path(os.environ["MITSUBA_DATA"]) if os.environ.get("MITSUBA_DATA") else None   # a copy of
+# mitsuba-renderer/mitsuba-data
+RENDER_TEST = "tests/scenes/bsdf_spheres/test_arealight_path.xml"
+
+
+def normal_passes(seed: int, mean: float = 1.0, sd: float = 0.1, k: int = 16, shape=(8, 8, 3)) -> np.ndarray:
+    return np.random.default_rng(seed).normal(mean, sd, (k, *shape))
+
+
+def test_the_detectable_bias_is_detected_with_the_stated_power():
+    """At a bias equal to the stated detectable bias of the image mean, the image-mean test rejects in about
+    POWER of the comparisons (normal passes, alpha 0.05 for counts large enough to see it)."""
+    alpha, sd = 0.05, 0.4
+    detectable = np.median([compare(normal_passes(2 * i, sd=sd), normal_passes(2 * i + 1, sd=sd), alpha)
+                            .detectable_image[0] for i in range(20)])
+    hits = sum(compare(normal_passes(100 + 2 * i, 1 + detectable, sd), normal_passes(101 + 2 * i, sd=sd), alpha)
+               .image_rejected[0] for i in range(300))
+    assert stats.binomtest(hits, 300, POWER).pvalue > 1e-3, (hits, detectable)
+
+
+def test_the_detectable_bias_falls_as_one_over_root_samples():
+    z = normal_passes(1, 0.0, 1.0), normal_passes(2, 0.0, 1.0)     # the same noise, 4 times smaller
+    wide, narrow = (compare(10 + sd * z[0], 10 + sd * z[1], 1e-3) for sd in (0.4, 0.1))
+    assert narrow.detectable_block == pytest.approx(wide.detectable_block / 4, rel=0.01)
+    assert narrow.detectable_image == pytest.approx(wide.detectable_image / 4, rel=0.01)
+    assert "detectable bias (80% power): image mean" in narrow.summary()
+
+
+def test_equivalent_within_the_margin_and_disagree_beyond_it():
+    margin = Margin(0.01, 0.05)
+    assert compare(normal_passes(3, sd=0.01), normal_passes(4, sd=0.01), 1e-3, margin).verdict == "equivalent"
+    assert compare(normal_passes(3, 1.03, 0.01), normal_passes(4, sd=0.01), 1e-3, margin).verdict == "disagree"
+    noisy = compare(normal_passes(3, sd=0.1), normal_passes(4, sd=0.1), 1e-3, margin)
+    assert noisy.verdict == "inconclusive" and noisy.needed > 1
+
+
+def test_a_bias_at_the_margin_is_rarely_called_equivalent():
+    """TOST's level: at a bias exactly at the margin, 'equivalent' in at most about alpha of comparisons
+    (alpha 0.05; 400 comparisons: 40 or more has probability below 1e-4 at exactly 0.05)."""
+    margin = Margin(0.01, 0.5)
+    equivalent = sum(compare(normal_passes(2 * i, 1.01, 0.02, shape=(2, 2, 3)), normal_passes(2 * i + 1, sd=0.02,
+                     shape=(2, 2, 3)), 0.05, margin).verdict == "equivalent" for i in range(400))
+    assert equivalent < 40
+
+
+def test_black_images_are_equivalent():
+    black = np.zeros((16, 4, 4, 3))
+    assert compare(black, black, 1e-3, Margin(0.01, 0.1)).verdict == "equivalent"
+
+
+def test_stages_raise_the_samples_four_times_up_to_the_maximum():
+    assert stages(64, 1024) == [64, 256, 1024]
+    assert stages(64, 64) == [64] and stages(64, 1000) == [64, 256]
+
+
+def moment_scene(tmp_path: Path, integrator: str = "path") -> Path:
+    """The stress suite's glass sphere with its integrator wrapped in `moment`, as Mitsuba's render tests."""
+    text = (SCENES / "stress" / "glass_sphere.xml").read_text()
+    start, end = text.index("<integrator"), text.index("</integrator>") + len("</integrator>")
+    inner = text[start:end].replace('type="path"', f'type="{integrator}"')
+    scene = tmp_path / "moment.xml"
+    scene.write_text(text[:start] + f'<integrator type="moment">{inner}</integrator>' + text[end:])
+    return scene
+
+
+def test_a_moment_integrator_is_compared_through_the_integrator_it_wraps(tmp_path):
+    scene_plan = plan(moment_scene(tmp_path), size=16)
+    xml = scene_plan.mitsuba_xml()
+    assert 'type="moment"' not in xml and '<integrator type="path">' in xml
+
+
+def test_every_refusal_comes_before_any_pass(tmp_path, capsys):
+    """A scene whose (wrapped) integrator the comparison cannot use is refused in one line, within 2 s and
+    before the renderer under test is run once."""
+    marker = tmp_path / "rendered"
+    command = f"{sys.executable} -c \"open('{marker}', 'w')\" {{output}}"
+    start = time.perf_counter()
+    assert cli.main(["check", str(moment_scene(tmp_path, "volpath")), "--renderer", command]) == 2
+    assert time.perf_counter() - start < 2
+    err = capsys.readouterr().err.strip()
+    assert "volpath" in err and "\n" not in err and not marker.exists()
+
+
+def test_margin_arguments_are_refused_in_one_line(capsys):
+    scene = str(SCENES / "hexagon_room.xml")
+    for bad in ("150%", "one"):
+        with pytest.raises(SystemExit) as e:
+            cli.main(["check", scene, "--margin", bad])
+        assert e.value.code == 2 and "margin" in capsys.readouterr().err
+    assert cli.main(["check", scene, "--margin", "1%", "5%", "7%"]) == 2
+    assert "one or two percentages" in capsys.readouterr().err
+
+
+def test_a_parameter_inside_a_refused_element_is_not_called_unused(tmp_path):
+    """-D depth=... names a parameter that a refused integrator uses: the refusal, not a follow-on error."""
+    import tracer
+
+    text = (SCENES / "stress" / "glass_sphere.xml").read_text()
+    start, end = text.index("<integrator"), text.index("</integrator>") + len("</integrator>")
+    scene = tmp_path / "refused.xml"
+    scene.write_text(text[:start] + '<default name="depth" value="3"/><integrator type="volpath">'
+                     '<integer name="max_depth" value="$depth"/></integrator>' + text[end:])
+    with pytest.raises(SceneError) as e:
+        tracer.load_scene(scene, depth="4")
+    assert "volpath" in str(e.value) and "uses no parameter" not in str(e.value)
+
+
+@pytest.mark.slow
+def test_the_example_renderer_honours_the_film_size_on_any_scene(tmp_path):
+    """examples/mitsuba_renderer.py on a scene that declares no <default> for the size, depth or spp."""
+    import subprocess
+
+    from tracer.imageio import read_exr
+
+    scene = moment_scene(tmp_path)
+    text = scene.read_text()
+    for name, value in (("spp", "16"), ("width", "32"), ("height", "32"), ("max_depth", "-1")):
+        text = text.replace(f'<default name="{name}" value="{value}"/>', "").replace(f"${name}", value)
+    scene.write_text(text)
+    out = tmp_path / "out.exr"
+    subprocess.run([sys.executable, str(ROOT / "examples" / "mitsuba_renderer.py"), str(scene), "-o", str(out),
+                    "--spp", "4", "-D", "width=12", "-D", "height=7", "-D", "max_depth=2", "-D", "spp=4"], check=True)
+    assert read_exr(out).shape[:2] == (7, 12)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(MITSUBA_DATA is None, reason="needs a copy of mitsuba-renderer/mitsuba-data")
+def test_a_render_test_scene_is_planned_and_loaded_by_mitsuba():
+    scene_plan = plan(MITSUBA_DATA / RENDER_TEST, size=None)
+    assert (scene_plan.width, scene_plan.height, scene_plan.max_depth) == (48, 48, 2)
+    assert "PathIntegrator" in str(scene_plan.mitsuba_scene(4).integrator())
