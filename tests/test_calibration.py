@@ -56,3 +56,33 @@ def test_cross_compares_repetitions_and_every_run_with_every_run():
     assert c["disagreements"][0]["all_runs"][0] == pytest.approx(1.2, abs=0.01)
     table = calibration._cross_table([{"scene": "s"} | c] * 2, ("scene",))
     assert table[-1].startswith("| all | 6 | 6/6 |") and "72/72" in table[-1]
+
+
+def test_the_equivalence_sequence_stops_at_the_first_decided_stage():
+    from validation.calibration_equivalence import STAGES, sequence
+    from validation.stats import Margin
+
+    rng = np.random.default_rng(3)
+    noise = [0.2 / 2 ** s for s in range(len(STAGES))]     # standard deviations halve from stage to stage
+    test = np.stack([rng.normal(1, sd, (16, 4, 4, 3)) for sd in noise])
+    ref = np.stack([rng.normal(1, sd, (16, 4, 4, 3)) for sd in noise])
+    margin = Margin(0.04, 0.4)
+    honest = sequence(test, ref, 0.05, margin)
+    assert honest.verdict == "equivalent" and honest.spent == 16 * sum(STAGES[:honest.stage])
+    assert sequence(test, ref, 0.05, margin, scale=0.8).verdict == "disagree"
+
+
+def test_the_equivalence_section_replaces_its_predecessor_and_keeps_the_rest(tmp_path, monkeypatch):
+    from validation import calibration_equivalence as ce
+
+    rows = [{"scene": s, "alpha": a, "block_margin": b, "bias": k, "n": 2, "equivalent": 1, "disagree": 1,
+             "inconclusive": 0, "spent_equivalent": [64], "spent_disagree": [320], "spent_inconclusive": [],
+             "seconds": 1.0} for s in ce.SCENES for a in ce.ALPHAS for b in ce.BLOCK_MARGINS for k in ce.BIASES]
+    monkeypatch.setattr(ce, "measure", lambda repetitions: rows)
+    out = tmp_path / "calibration.md"
+    out.write_text("# Calibration\n\n## Null\n\nkept\n\n## Time per check\n\nkept too\n")
+    ce.update(out, 2)
+    ce.update(out, 2)
+    text = out.read_text()
+    assert text.count(ce.SECTION) == 1 and text.index("## Null") < text.index(ce.SECTION) < text.index("## Time")
+    assert "kept too" in text and "| 20% | 1 | 3/6" in text

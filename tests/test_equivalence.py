@@ -149,3 +149,15 @@ def test_a_render_test_scene_is_planned_and_loaded_by_mitsuba():
     scene_plan = plan(MITSUBA_DATA / RENDER_TEST, size=None)
     assert (scene_plan.width, scene_plan.height, scene_plan.max_depth) == (48, 48, 2)
     assert "PathIntegrator" in str(scene_plan.mitsuba_scene(4).integrator())
+
+
+def test_ci_sets_the_margin_and_none_removes_it(monkeypatch, capsys):
+    from validation import protocol
+    from validation.cli import _check_margin
+
+    monkeypatch.delenv("CI", raising=False)
+    assert _check_margin(None) is None
+    monkeypatch.setenv("CI", "true")
+    assert _check_margin(None) == Margin(protocol.CI_MARGIN, protocol.BLOCK_MARGIN)
+    assert "CI is set" in capsys.readouterr().out
+    assert _check_margin([None]) is None and _check_margin([0.02, 0.3]) == Margin(0.02, 0.3)

@@ -31,6 +31,10 @@ def _parser() -> argparse.ArgumentParser:
                        "comparisons and its power on injected faults (cached renders; resumes)")
     c.add_argument("--output", "-o", type=Path, default=Path("reports/calibration.md"))
     c.add_argument("--repetitions", type=int, default=12, help="null comparisons per cell (default 12)")
+    c.add_argument("--only", choices=("equivalence",), help="re-measure one section (the check with a margin: "
+                   "false alarms, false 'equivalent', power), keeping the others")
+    c.add_argument("--equivalence-repetitions", type=int, default=24, help="repetitions per scene of the "
+                   "equivalence section (default 24)")
     v = sub.add_parser("coverage", help="write reports/mitsuba_scenes.md: which of Mitsuba's own scenes (a local "
                        "copy of mitsuba-renderer/mitsuba-data) the tracer renders and agrees on, what blocks the rest")
     v.add_argument("mitsuba_data", type=Path, metavar="MITSUBA_DATA_DIR")
@@ -124,7 +128,9 @@ def _check_parser(sub) -> None:
     k.add_argument("--margin", type=_margin, nargs="+", metavar="PERCENT", help="test equivalence within this "
                    "margin of the image mean (e.g. 1%%) and, optionally, a second margin per block (default "
                    f"{protocol.BLOCK_MARGIN:.0%} of a block's mean or of the image mean where the block is darker): "
-                   "equivalent / disagree / inconclusive, raising the spp per pass until decided or --max-spp")
+                   "equivalent / disagree / inconclusive, raising the spp per pass until decided or --max-spp. "
+                   f"Default: {protocol.CI_MARGIN:.0%} where the environment variable CI is set (CI services set "
+                   "it), else none; 'none': a test of difference only (agree / disagree)")
     k.add_argument("--json", type=Path, metavar="FILE", help="write the results as JSON")
     k.add_argument("--junit", type=Path, metavar="FILE", help="write JUnit XML (one test case per check)")
     k.add_argument("--output", "-o", type=Path, metavar="DIR", help="on disagree or inconclusive: ours, the "
@@ -141,8 +147,10 @@ def _size(text: str) -> int | None:
         raise argparse.ArgumentTypeError(f"expected a number of pixels or 'native', got '{text}'") from None
 
 
-def _margin(text: str) -> float:
-    """--margin: a percentage ('1%', '1') as a fraction."""
+def _margin(text: str) -> float | None:
+    """--margin: a percentage ('1%', '1') as a fraction; 'none' as None."""
+    if text == "none":
+        return None
     try:
         value = float(text.removesuffix("%")) / 100
     except ValueError:
@@ -156,11 +164,9 @@ def _check(args) -> int:
     from tracer.cli import parse_defines
     from tracer.estimators import BranchingEstimator
 
-    from . import protocol
     from .check import Settings, exit_code, prepare, run, write_json, write_junit
     from .renderers import ExternalRenderer, TracerRenderer
     from .scenefile import ScenePlanError
-    from .stats import Margin
 
     defines = parse_defines(args.defines)
     spp = args.spp
@@ -168,9 +174,7 @@ def _check(args) -> int:
         if spp is not None:
             raise ScenePlanError("give the samples per pass once: --spp or -D spp, not both")
         spp = _integer_define(defines.pop("spp"))
-    if args.margin and len(args.margin) > 2:
-        raise ScenePlanError("--margin takes one or two percentages: the image mean's and the blocks'")
-    margin = Margin(args.margin[0], args.margin[1] if len(args.margin) > 1 else protocol.BLOCK_MARGIN) if args.margin else None
+    margin = _check_margin(args.margin)
     settings = Settings(passes=args.passes, spp=spp, seed=args.seed, alpha=args.alpha, size=args.size,
                         max_spp=args.max_spp, margin=margin)
     if args.renderer:
@@ -201,6 +205,29 @@ def _check(args) -> int:
         if v in ("disagree", "inconclusive") or any(r.verdict == v for r in results)) +
         f" (exit {code})")
     return code
+
+
+def _check_margin(values: list[float | None] | None):
+    """The check's margin: --margin's, or in CI (the CI environment variable set) protocol.CI_MARGIN."""
+    import os
+
+    from . import protocol
+    from .scenefile import ScenePlanError
+    from .stats import Margin
+
+    if values is None:
+        if not os.environ.get("CI"):
+            return None
+        print(f"validate check: CI is set: equivalence within --margin {protocol.CI_MARGIN:.0%} (--margin none: a "
+              "test of difference only)", flush=True)
+        values = [protocol.CI_MARGIN]
+    if None in values:
+        if len(values) > 1:
+            raise ScenePlanError("--margin none takes no second value")
+        return None
+    if len(values) > 2:
+        raise ScenePlanError("--margin takes one or two percentages: the image mean's and the blocks'")
+    return Margin(values[0], values[1] if len(values) > 1 else protocol.BLOCK_MARGIN)
 
 
 def _integer_define(text: str) -> int:
@@ -282,9 +309,12 @@ def _run(args) -> int:
     if args.command == "check":
         return _check(args)
     if args.command == "calibrate":
+        from . import calibration_equivalence
         from .calibration import report
 
-        print(report(args.output, args.repetitions))
+        if args.only != "equivalence":
+            report(args.output, args.repetitions)
+        print(calibration_equivalence.update(args.output, args.equivalence_repetitions))
         return 0
     if args.command == "coverage":
         from .coverage import FOLDERS, report
