@@ -5,6 +5,7 @@ from __future__ import annotations
 import drjit as dr
 from tqdm import tqdm
 
+from . import compile_clock
 from .film import Film
 from .jit import UInt32, opaque_u32
 from .plan import PATH_CHUNK
@@ -16,6 +17,7 @@ def chunks(total: int, size: int, progress: bool, label: str):
     for start in range(0, total, size):
         n = min(size, total - start)
         yield start, n
+        compile_clock.lap()    # the launch's kernels leave Dr.Jit's history
         bar.update(n)
     bar.close()
 

@@ -7,9 +7,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import drjit as dr
 import numpy as np
 
+from .compile_clock import CompileClock
 from .errors import SettingsError
 from .estimators import BranchingEstimator, PathEstimator, integer, make_estimator
 from .film import FILTERS, Film, ReconstructionFilter
@@ -169,14 +169,9 @@ def run_passes(passes: list[int], time_limit: float | None, render_pass) -> list
 
 def timed(run):
     """(run's result, wall seconds, of which Dr.Jit's kernel generation and compilation): runs `run()`
-    with Dr.Jit's kernel history on."""
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    dr.kernel_history()  # clear
-    start = time.perf_counter()
-    try:
+    under a CompileClock."""
+    with CompileClock() as clock:
+        start = time.perf_counter()
         out = run()
         seconds = time.perf_counter() - start
-        history = dr.kernel_history()
-    finally:
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
-    return out, seconds, sum(k.get("codegen_time", 0) + k.get("backend_time", 0) for k in history) / 1000
+    return out, seconds, clock.seconds

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import drjit as dr
 
+from .. import compile_clock
 from ..geometry import SceneGeometry
 from ..materials import CONDUCTOR, DIELECTRIC, DIFFUSE, PLASTIC, plastic
 from ..materials.dielectric import dielectric_interface
@@ -82,6 +83,7 @@ def _wavefront(geo: SceneGeometry, rng: PCG32, path: PathState, max_depth: UInt3
             dr.scatter(L, path.L, lane, ended)
             dr.scatter(rays, path.rays, lane, ended)
             dr.eval(path, rng, L, rays)
+            compile_clock.lap()    # a bounce's thousands of walk kernels leave Dr.Jit's history
 
 
 def _bounce(geo, rng, path: PathState, max_depth, rr_depth) -> None:
