@@ -86,3 +86,17 @@ def test_the_equivalence_section_replaces_its_predecessor_and_keeps_the_rest(tmp
     text = out.read_text()
     assert text.count(ce.SECTION) == 1 and text.index("## Null") < text.index(ce.SECTION) < text.index("## Time")
     assert "kept too" in text and "| 20% | 1 | 3/6" in text
+
+
+def test_mitsubas_criterion_passes_its_reference_and_fails_a_dim_image():
+    """Mitsuba's render-test criterion (validation.mitsuba_criterion): the reference itself passes, 10% too dark
+    fails where the variance is small, and the variance floor keeps a black reference from failing on noise."""
+    from validation.mitsuba_criterion import mitsuba_passes
+
+    rng = np.random.default_rng(5)
+    ref = rng.uniform(0.5, 1.0, (16, 16, 3))
+    var = np.full_like(ref, 0.01)
+    noisy = ref + rng.normal(0, np.sqrt(0.01 / 1000), ref.shape)     # an honest 1000-spp render
+    assert mitsuba_passes(noisy, ref, var, 1000)
+    assert not mitsuba_passes(noisy * 0.9, ref, var, 1000)
+    assert mitsuba_passes(np.full_like(ref, 1e-4), np.zeros_like(ref), np.zeros_like(ref), 1000)

@@ -172,19 +172,8 @@ SECTION = "## Equivalence: false alarms, false \"equivalent\" and power"
 def update(out: Path, repetitions: int) -> Path:
     """Measures (cached renders) and writes this section into `out` (reports/calibration.md), replacing an
     earlier one and keeping every other section; its rows go to calibration_equivalence.json beside it."""
-    from .provenance import write_json, write_text
+    from .provenance import replace_section, write_json
 
     rows = measure(repetitions)
     write_json(out.with_name("calibration_equivalence.json"), rows)
-    section = "\n".join(markdown(rows, repetitions)) + "\n\n"
-    text = out.read_text() if out.exists() else "# Calibration of `validate check`\n\n"
-    if SECTION in text:
-        start = text.index(SECTION)
-        end = text.find("\n## ", start + len(SECTION))
-        text = text[:start] + section + (text[end + 1:] if end >= 0 else "")
-    elif "\n## Time per check" in text:
-        at = text.index("\n## Time per check") + 1
-        text = text[:at] + section + text[at:]
-    else:
-        text += "\n" + section
-    return write_text(out, text)
+    return replace_section(out, SECTION, markdown(rows, repetitions), before="## Time per check")

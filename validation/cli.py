@@ -31,10 +31,15 @@ def _parser() -> argparse.ArgumentParser:
                        "comparisons and its power on injected faults (cached renders; resumes)")
     c.add_argument("--output", "-o", type=Path, default=Path("reports/calibration.md"))
     c.add_argument("--repetitions", type=int, default=12, help="null comparisons per cell (default 12)")
-    c.add_argument("--only", choices=("equivalence",), help="re-measure one section (the check with a margin: "
-                   "false alarms, false 'equivalent', power), keeping the others")
+    c.add_argument("--only", choices=("equivalence", "criterion"), help="re-measure one section, keeping the "
+                   "others: equivalence (the check with a margin: false alarms, false 'equivalent', power) or "
+                   "criterion (Mitsuba's render-test criterion beside the check; needs --mitsuba-data)")
+    c.add_argument("--mitsuba-data", type=Path, metavar="DIR", help="a copy of mitsuba-renderer/mitsuba-data: "
+                   "adds the section comparing Mitsuba's render-test criterion with the check")
     c.add_argument("--equivalence-repetitions", type=int, default=24, help="repetitions per scene of the "
                    "equivalence section (default 24)")
+    c.add_argument("--criterion-repetitions", type=int, default=8, help="repetitions of the criterion section "
+                   "(default 8)")
     v = sub.add_parser("coverage", help="write reports/mitsuba_scenes.md: which of Mitsuba's own scenes (a local "
                        "copy of mitsuba-renderer/mitsuba-data) the tracer renders and agrees on, what blocks the rest")
     v.add_argument("mitsuba_data", type=Path, metavar="MITSUBA_DATA_DIR")
@@ -309,12 +314,19 @@ def _run(args) -> int:
     if args.command == "check":
         return _check(args)
     if args.command == "calibrate":
-        from . import calibration_equivalence
+        from . import calibration_equivalence, mitsuba_criterion
         from .calibration import report
+        from .scenefile import ScenePlanError
 
-        if args.only != "equivalence":
+        if args.only == "criterion" and args.mitsuba_data is None:
+            raise ScenePlanError("--only criterion needs --mitsuba-data DIR (a copy of mitsuba-renderer/mitsuba-data)")
+        if args.only is None:
             report(args.output, args.repetitions)
-        print(calibration_equivalence.update(args.output, args.equivalence_repetitions))
+        if args.only in (None, "equivalence"):
+            calibration_equivalence.update(args.output, args.equivalence_repetitions)
+        if args.mitsuba_data is not None:
+            mitsuba_criterion.update(args.output, args.mitsuba_data, args.criterion_repetitions)
+        print(args.output)
         return 0
     if args.command == "coverage":
         from .coverage import FOLDERS, report

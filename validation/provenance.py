@@ -33,3 +33,20 @@ def write_text(path: str | Path, text: str) -> Path:
 
 def write_json(path: str | Path, value) -> Path:
     return write_text(path, json.dumps(value, indent=1) + "\n")
+
+
+def replace_section(path: Path, title: str, lines: list[str], before: str) -> Path:
+    """Writes the Markdown section `lines` (starting with its heading `title`) into `path`: in place of an
+    earlier section of that title, else before the heading `before`, else at the end; the rest is kept."""
+    section = "\n".join(lines) + "\n\n"
+    text = Path(path).read_text() if Path(path).exists() else ""
+    if title in text:
+        start = text.index(title)
+        end = text.find("\n## ", start + len(title))
+        text = text[:start] + section + (text[end + 1:] if end >= 0 else "")
+    elif f"\n{before}" in text:
+        at = text.index(f"\n{before}") + 1
+        text = text[:at] + section + text[at:]
+    else:
+        text += ("\n" if text else "") + section
+    return write_text(path, text)
