@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from tracer.integrators import report as report_estimator
 from validation.check import Settings, check
+from validation.faults import FAULTS
 from validation.protocol import ALPHA
 from validation.renderers import ExternalRenderer, TracerRenderer
 
@@ -71,16 +71,10 @@ def test_disagrees_on_a_deliberately_wrong_image(monkeypatch):
     assert result.verdict == "disagree", result.line()
 
 
-def test_disagrees_on_the_report_codes_double_cosine(monkeypatch):
+def test_disagrees_on_the_report_codes_double_cosine():
     """The report's code weights cosine-sampled directions by the cosine a second time."""
-    correct = report_estimator.hemisphere_sample
-
-    def double_cosine(albedo, u1, u2, hemisphere):
-        local, weight = correct(albedo, u1, u2, hemisphere)
-        return local, weight * local.z
-
-    monkeypatch.setattr(report_estimator, "hemisphere_sample", double_cosine)
-    result = verdict(SCENES / "hexagon_room.xml", REPORT, 3)
+    with FAULTS["double_cosine"].inject():
+        result = verdict(SCENES / "hexagon_room.xml", REPORT, 3)
     assert result.verdict == "disagree", result.line()
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import tracer
-from tracer.materials import tables
+from tracer.materials import conductor
 from tracer.materials.fresnel import fresnel_conductor
 from tracer.ior import CONDUCTORS
 from tracer.jit import Array3f, Float
@@ -70,7 +70,7 @@ def test_conductors_agree_with_mitsuba(estimator, max_depth):
 
 @pytest.mark.slow
 def test_fails_on_perfect_mirrors(monkeypatch):
-    monkeypatch.setattr(tables, "fresnel_conductor", lambda cos_i, eta, k: Array3f(1.0))
+    monkeypatch.setattr(conductor, "fresnel_conductor", lambda cos_i, eta, k: Array3f(1.0))
     ref = mitsuba_passes("conductors.xml", PASSES, SPP, width=SIZE, height=SIZE, max_depth=6)
     result = compare_passes(tracer_passes("path", 6), ref, ALPHA)
     assert result.verdict == "disagree", result.summary()

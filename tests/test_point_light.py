@@ -35,8 +35,8 @@ def test_point_lights_agree_with_mitsuba(estimator, max_depth):
 def test_fails_with_a_1_over_d_falloff(monkeypatch):
     sample = direct.sample_direct
 
-    def one_over_d(geo, surf, ns, albedo, u_select, u1, u2, active):
-        ds = sample(geo, surf, ns, albedo, u_select, u1, u2, active)
+    def one_over_d(geo, surf, bsdf, u_select, u1, u2, active):
+        ds = sample(geo, surf, bsdf, u_select, u1, u2, active)
         ls = geo.sample_light(u_select, u1, u2)
         d = dr.norm(ls.y - surf.p)
         ds.value = dr.select(ls.prim == POINT_LIGHT, ds.value * d, ds.value)

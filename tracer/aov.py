@@ -8,7 +8,7 @@ Each sample here makes that blend's Monte Carlo estimate: at glass it reflects w
 refracts otherwise. The features go through the colour image's own pixel filter (a Film), as OIDN requires.
 
 What a sample records where it stops:
-- a diffuse surface: its reflectance rho and its shading normal on the side seen (world space, unit
+- a surface whose BSDF has a non-delta lobe: the reflectance its kind gives (`albedo`; diffuse: rho, else 0) and its shading normal on the side seen (world space, unit
   length); a one-sided surface seen from behind renders black, so its albedo is 0;
 - an area light seen from its emitting side: the colour of its radiance, Le / max(Le), and its normal;
 - a miss (the ray leaves the scene) or a mirror seen from behind: albedo 0, a miss also normal 0;
@@ -25,11 +25,9 @@ import numpy as np
 from .camera import primary_rays
 from .film import Film, ReconstructionFilter
 from .geometry import SceneGeometry
-from .materials import CONDUCTOR, DIELECTRIC, DIFFUSE
-from .materials.dielectric import dielectric_interface
-from .materials.fresnel import reflect
-from .integrators.direct import facing_normal
-from .jit import INF, NO_PRIM, PCG32, Array3f, Bool, Float, UInt32, opaque_u32
+from .materials import SurfaceBSDF
+from .materials.dispatch import delta_only
+from .jit import INF, NO_PRIM, PCG32, Array2f, Array3f, Bool, Float, UInt32, opaque_u32
 from .launch import chunks, seed_state
 from .plan import PATH_CHUNK
 from .rendering import Timed, timed
@@ -91,30 +89,24 @@ def first_diffuse_features(geo: SceneGeometry, o: Array3f, d: Array3f, t_min: Fl
 
 
 def _vertex(geo, rng, o, d, t_min, t_max, skip, bounce, albedo, normal):
-    """One vertex: record the features and stop, or continue along the specular direction."""
+    """One vertex: record the features and stop, or continue along a direction sampled from a BSDF whose
+    lobes are all delta."""
     hit = geo.closest_hit(o, d, t_min, t_max, skip)
     surf = geo.surface(hit)
     wi = -d
-    kind = geo.materials.kind(surf.material, surf.valid)
-    ns, lit = facing_normal(geo, surf, wi)
-    diffuse = surf.valid & (kind == DIFFUSE) & lit
-    rho = dr.select(diffuse, geo.materials.albedo_at(surf, diffuse), Array3f(0.0))
+    bsdf = SurfaceBSDF(geo.materials, surf, wi, surf.valid)
+    lit = surf.valid & bsdf.lit
+    rho = bsdf.albedo(lit)
+    ns = bsdf.normal
     light = Bool(False)
     if geo.emitters:
         le = geo.emitted(surf, wi)
         light = dr.max(le) > 0
         rho = dr.select(light, le / dr.max(le), rho)
-    follow, new_d = Bool(False), Array3f(d)
-    if CONDUCTOR in geo.materials.kinds:
-        mirror = surf.valid & ~light & (kind == CONDUCTOR) & (dr.dot(surf.ns, wi) > 0)
-        new_d = dr.select(mirror, reflect(d, surf.ns), new_d)
-        follow |= mirror
-    if DIELECTRIC in geo.materials.kinds:
-        glass = surf.valid & ~light & (kind == DIELECTRIC)
-        int_ior, ext_ior = geo.materials.iors(surf.material, glass)
-        f, reflected, refracted, _ = dielectric_interface(d, surf.ns, int_ior, ext_ior)
-        new_d = dr.select(glass, dr.select(rng.next_float32() < f, reflected, refracted), new_d)
-        follow |= glass
+    follow = lit & ~light & bsdf.kinds_where(delta_only)
+    u1 = rng.next_float32()
+    bs, _ = bsdf.sample(u1, Array2f(rng.next_float32(), rng.next_float32()), follow)
+    new_d = dr.select(follow, bs.wo, d)
     give_up = follow & (bounce + 1 >= MAX_SPECULAR)
     rho = dr.select(give_up, Array3f(1.0), rho)
     record = surf.valid & (~follow | give_up)

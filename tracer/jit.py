@@ -44,8 +44,9 @@ PRECISION = os.environ.get("TRACER_PRECISION", "single").lower()
 if PRECISION not in ("single", "double"):
     raise BackendError(f"TRACER_PRECISION must be 'single' or 'double', got '{PRECISION}'")
 # double: every kernel computes in float64 (random numbers stay float32, promoted), to tell rounding from bias
-Float, Array3f, ArrayXf = (_backend.Float64, _backend.Array3f64, _backend.ArrayXf64) if PRECISION == "double" \
-    else (_backend.Float, _backend.Array3f, _backend.ArrayXf)
+Float, Array2f, Array3f, ArrayXf = (
+    (_backend.Float64, _backend.Array2f64, _backend.Array3f64, _backend.ArrayXf64) if PRECISION == "double"
+    else (_backend.Float, _backend.Array2f, _backend.Array3f, _backend.ArrayXf))
 HOST_FLOAT = np.float64 if PRECISION == "double" else np.float32   # Float's NumPy type (tables built in it)
 
 INF = float("inf")

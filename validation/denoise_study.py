@@ -28,10 +28,10 @@ from tracer.aov import render_aovs  # noqa: E402
 from tracer.camera import primary_rays  # noqa: E402
 from tracer.denoise import denoise  # noqa: E402
 from tracer.geometry import SceneGeometry  # noqa: E402
-from tracer.materials import CONDUCTOR, DIELECTRIC, DIFFUSE  # noqa: E402
+from tracer.materials import CONDUCTOR, DIELECTRIC, DIFFUSE, SurfaceBSDF  # noqa: E402
 from tracer.imageio import srgb_encode  # noqa: E402
-from tracer.integrators.direct import facing_normal, sample_direct  # noqa: E402
-from tracer.jit import NO_PRIM, Array3f, UInt32  # noqa: E402
+from tracer.integrators.direct import sample_direct  # noqa: E402
+from tracer.jit import NO_PRIM, UInt32  # noqa: E402
 from tracer.rendering import render  # noqa: E402
 from tracer.sampling import seeded_rng  # noqa: E402
 
@@ -70,11 +70,10 @@ def _pixel_samples(scene: tracer.Scene, spp: int):
     rng = seeded_rng(sample, 0x5EED)
     o, d, t_min, t_max, _, _ = primary_rays(cam, sample // spp, rng)
     surf = geo.surface(geo.closest_hit(o, d, t_min, t_max, UInt32(NO_PRIM)))
-    kind = geo.materials.kind(surf.material, surf.valid)
-    ns, lit = facing_normal(geo, surf, -d)
-    diffuse = surf.valid & (kind == DIFFUSE) & lit
-    ds = sample_direct(geo, surf, ns, Array3f(1.0), rng.next_float32(), rng.next_float32(), rng.next_float32(),
-                       diffuse)
+    bsdf = SurfaceBSDF(geo.materials, surf, -d, surf.valid)
+    kind = bsdf.kind
+    diffuse = surf.valid & (kind == DIFFUSE) & bsdf.lit
+    ds = sample_direct(geo, surf, bsdf, rng.next_float32(), rng.next_float32(), rng.next_float32(), diffuse)
     seen = diffuse & (dr.max(ds.value) > 0)
     emitter = dr.max(geo.emitted(surf, -d)) > 0
     shape = (cam.height, cam.width, spp)

@@ -6,7 +6,8 @@ so no tracer code changes:
 - double_cosine: the report code's bug; cosine-sampled directions weighted by the cosine a second time.
 - light_counted_twice: the report code's bug; an indirect ray that hits the light adds its emission
   although eq. 10 already counted that light.
-- missing_inv_pi: the diffuse BRDF rho instead of rho / pi in the shadow-ray estimate (eq. 10).
+- missing_inv_pi: the diffuse BRDF rho instead of rho / pi where it is evaluated (the shadow-ray estimate,
+  eq. 10; sampling weights it by rho, correctly).
 - schlick_fresnel: Schlick's approximation instead of the exact dielectric Fresnel reflectance.
 - wrong_light_density: light points drawn with density 2u in one coordinate while the estimator divides
   by the uniform density 1 / area.
@@ -20,9 +21,9 @@ from unittest import mock
 
 import drjit as dr
 
-import tracer.integrators.direct
 import tracer.integrators.report
 import tracer.materials.dielectric
+import tracer.materials.diffuse
 from tracer.geometry import SceneGeometry
 
 
@@ -45,13 +46,13 @@ class Fault:
 
 
 def _double_cosine() -> list:
-    correct = tracer.integrators.report.hemisphere_sample
+    correct = tracer.integrators.report.indirect_sample
 
-    def double_cosine(albedo, u1, u2, hemisphere):
-        local, weight = correct(albedo, u1, u2, hemisphere)
-        return local, weight * local.z
+    def double_cosine(bsdf, u1, u2, hemisphere):
+        bs, weight = correct(bsdf, u1, u2, hemisphere)
+        return bs, dr.select(bsdf.smooth, weight * dr.abs(dr.dot(bs.wo, bsdf.n)), weight)
 
-    return [mock.patch.object(tracer.integrators.report, "hemisphere_sample", double_cosine)]
+    return [mock.patch.object(tracer.integrators.report, "indirect_sample", double_cosine)]
 
 
 def _light_counted_twice() -> list:
@@ -64,7 +65,7 @@ def _light_counted_twice() -> list:
 
 
 def _missing_inv_pi() -> list:
-    return [mock.patch.object(tracer.integrators.direct, "diffuse_brdf", lambda albedo: albedo)]
+    return [mock.patch.object(tracer.materials.diffuse, "diffuse_brdf", lambda albedo: albedo)]
 
 
 def _schlick_fresnel() -> list:

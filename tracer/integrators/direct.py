@@ -1,4 +1,4 @@
-"""Pieces both estimators share: one shadow ray to an area light (eq. 10) and the diffuse frame."""
+"""What both estimators share: one shadow ray to a light (eq. 10), weighted by the surface's BSDF."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -7,34 +7,24 @@ import drjit as dr
 
 from ..geometry import SceneGeometry, Surface
 from ..lights import DIRECTIONAL_LIGHT, POINT_LIGHT
-from ..materials.diffuse import diffuse_brdf
+from ..materials import SurfaceBSDF
 from ..jit import INF, NO_PRIM, Array3f, Bool, Float
-
-
-def facing_normal(geo: SceneGeometry, surf: Surface, wi: Array3f) -> tuple[Array3f, Bool]:
-    """Shading normal on the side wi comes from for two-sided materials; whether the side is lit.
-
-    One-sided materials are black from behind, as in Mitsuba.
-    """
-    twosided = geo.materials.twosided(surf.material, surf.valid)
-    back = dr.dot(surf.ns, wi) < 0
-    ns = dr.select(twosided & back, -surf.ns, surf.ns)
-    return ns, dr.dot(ns, wi) > 0
 
 
 @dataclass
 class DirectSample:
-    value: Array3f    # f * Le * cos_x * cos_y / (d^2 * pdf_area): one term of eq. 10, A = 1 / pdf_area
+    value: Array3f    # f * cos_x * Le * cos_y / (d^2 * pdf_area): one term of eq. 10, A = 1 / pdf_area
     pdf_light: Float  # the same sample's density in solid angle, for MIS
-    cos_x: Float
-    occluded: Bool    # meaningful where the sample is lit (cos_x, cos_y > 0)
+    pdf_bsdf: Float   # the density with which the BSDF samples its direction, for MIS
+    occluded: Bool    # meaningful where the sample is lit (f cos_x > 0, cos_y > 0)
 
 
-def sample_direct(geo: SceneGeometry, surf: Surface, ns: Array3f, albedo: Array3f,
-                  u_select: Float, u1: Float, u2: Float, active: Bool) -> DirectSample:
-    """One shadow ray from a diffuse point to a point drawn uniformly on an area light (eq. 10), to a point
-    light (cos_y 1), or along a direction drawn towards the environment or of a directional light (at
-    infinity: distance 1 and cos_y 1 in the formulas, the shadow ray unbounded)."""
+def sample_direct(geo: SceneGeometry, surf: Surface, bsdf: SurfaceBSDF, u_select: Float, u1: Float, u2: Float,
+                  active: Bool) -> DirectSample:
+    """One shadow ray to a point drawn uniformly on an area light (eq. 10), to a point light (cos_y 1), or
+    along a direction drawn towards the environment or of a directional light (at infinity: distance 1 and
+    cos_y 1 in the formulas, the shadow ray unbounded); the BSDF evaluates the light's direction (f cos_x,
+    and its own pdf there)."""
     ls = geo.sample_light(u_select, u1, u2)
     to_light = ls.y - surf.p
     dist2 = dr.squared_norm(to_light)
@@ -45,30 +35,30 @@ def sample_direct(geo: SceneGeometry, surf: Surface, ns: Array3f, albedo: Array3
         dist2 = dr.select(infinite, 1.0, dist2)
     dist = dr.sqrt(dist2)
     w = to_light / dist
-    cos_x = dr.dot(ns, w)
+    f, pdf_bsdf = bsdf.eval_pdf(w, active)
     cos_y = -dr.dot(ls.n, w)
     if geo.has_infinite_lights:
         cos_y = dr.select(infinite, 1.0, cos_y)
         dist = dr.select(infinite, INF, dist)
     if geo.points:           # a point light: intensity / d^2, no surface to be seen at an angle
         cos_y = dr.select(ls.prim == POINT_LIGHT, 1.0, cos_y)
-    lit = active & (cos_x > 0) & (cos_y > 0) & (dist2 > 0)
-    geo.keep(surf, ns, albedo, ls, w, dist2, cos_x, cos_y, lit)
+    lit = active & (dr.max(f) > 0) & (cos_y > 0) & (dist2 > 0)
+    geo.keep(surf, f, pdf_bsdf, ls, w, dist2, cos_y, lit)
     occluded = geo.occluded(surf.p, w, dist, surf.prim, ls.prim, lit)   # traced only where it counts
-    geometry_term = cos_x * cos_y / dist2
+    geometry_term = cos_y / dist2
     if geo.spots:            # a spot light's falloff in the direction of the shaded point (1 off spot lights)
         cos_cutoff, cos_beam, cutoff, inv_width = ls.cone
         cos_t = -dr.dot(ls.n, w)
         falloff = dr.select(cos_t >= cos_beam, 1.0, (cutoff - dr.safe_acos(cos_t)) * inv_width)
         geometry_term *= dr.select(cos_t > cos_cutoff, falloff, 0.0)
-    value = diffuse_brdf(albedo) * ls.radiance * (geometry_term / ls.pdf_area)
+    value = f * ls.radiance * (geometry_term / ls.pdf_area)
     ok = lit & ~occluded
     pdf_light = ls.pdf_area * dist2 / dr.maximum(cos_y, 1e-30)
     if geo.points:           # a delta light: no other strategy can find it, its MIS weight is 1
         pdf_light = dr.select(ls.prim == POINT_LIGHT, INF, pdf_light)
     if geo.directionals:
         pdf_light = dr.select(ls.prim == DIRECTIONAL_LIGHT, INF, pdf_light)
-    return DirectSample(dr.select(ok, value, Array3f(0.0)), pdf_light, cos_x, occluded)
+    return DirectSample(dr.select(ok, value, Array3f(0.0)), pdf_light, pdf_bsdf, occluded)
 
 
 def power_heuristic(pdf_a: Float, pdf_b: Float) -> Float:

@@ -14,12 +14,10 @@ import drjit as dr
 
 from .. import compile_clock
 from ..geometry import SceneGeometry
-from ..materials import CONDUCTOR, DIELECTRIC, DIFFUSE, PLASTIC, plastic
-from ..materials.dielectric import dielectric_interface
-from ..materials.fresnel import fresnel_dielectric, reflect
-from ..jit import INF, NO_PRIM, PCG32, Array3f, Bool, Float, UInt32
-from ..sampling import square_to_cosine_hemisphere, to_world
-from .direct import facing_normal, power_heuristic, sample_direct
+from ..materials import SurfaceBSDF
+from ..materials.bsdf import DELTA, has_flag
+from ..jit import INF, NO_PRIM, PCG32, Array2f, Array3f, Bool, Float, UInt32
+from .direct import power_heuristic, sample_direct
 
 Q_MAX = 0.9995  # largest Russian-roulette survival probability
 
@@ -99,9 +97,10 @@ def _bounce(geo, rng, path: PathState, max_depth, rr_depth) -> None:
 
 
 def _vertex(geo, rng, path: PathState, max_depth) -> Bool:
-    """One path vertex: emission (MIS-weighted), a shadow ray, and the next direction, updating `path`;
-    returns whether the path may go on."""
-    L, beta, eta, d, rays, depth = path.L, path.beta, path.eta, path.d, path.rays, path.depth
+    """One path vertex: emission (MIS-weighted), a shadow ray weighted by the BSDF (MIS-weighted against
+    sampling the BSDF, where it has a non-delta lobe), and the next direction sampled from the BSDF,
+    updating `path`; returns whether the path may go on."""
+    L, beta, d, rays, depth = path.L, path.beta, path.d, path.rays, path.depth
     hit = geo.closest_hit(path.o, d, path.t_min, path.t_max, path.skip)
     rays += 1
     surf = geo.surface(hit)
@@ -116,76 +115,16 @@ def _vertex(geo, rng, path: PathState, max_depth) -> Bool:
         w = dr.select(path.prev_delta, 1.0, power_heuristic(path.prev_pdf, pdf_light))
         L += dr.select(on_light, beta * le * w, Array3f(0.0))
     active_next = surf.valid & (depth + 1 < max_depth)
-    kind = geo.materials.kind(surf.material, surf.valid)
-    new_d, weight, pdf, delta = Array3f(0.0), Array3f(0.0), Float(0.0), Bool(False)
-    new_eta = eta
-
-    if DIFFUSE in geo.materials.kinds:
-        is_diffuse = active_next & (kind == DIFFUSE)
-        ns, lit = facing_normal(geo, surf, wi)
-        albedo = geo.materials.albedo_at(surf, is_diffuse)
-        is_diffuse &= lit
-        geo.keep(L, kind, is_diffuse, active_next, rng)
-        if geo.has_lights:
-            ds = sample_direct(geo, surf, ns, albedo, rng.next_float32(), rng.next_float32(), rng.next_float32(),
-                               is_diffuse)
-            w_nee = power_heuristic(ds.pdf_light, dr.maximum(ds.cos_x, 0.0) / dr.pi)
-            L += dr.select(is_diffuse, beta * ds.value * w_nee, Array3f(0.0))
-            rays += dr.select(is_diffuse, 1, 0)
-        local = square_to_cosine_hemisphere(rng.next_float32(), rng.next_float32())
-        new_d = dr.select(is_diffuse, to_world(local, ns), new_d)
-        weight = dr.select(is_diffuse, albedo, weight)      # f cos / pdf = rho for cosine sampling
-        pdf = dr.select(is_diffuse, local.z / dr.pi, pdf)
-
-    if CONDUCTOR in geo.materials.kinds:
-        is_mirror = active_next & (kind == CONDUCTOR) & (dr.dot(surf.ns, wi) > 0)
-        new_d = dr.select(is_mirror, reflect(d, surf.ns), new_d)
-        weight = dr.select(is_mirror, geo.materials.conductor_weight(surf.material, dr.dot(surf.ns, wi), is_mirror), weight)
-        delta |= is_mirror
-
-    if DIELECTRIC in geo.materials.kinds:
-        is_glass = active_next & (kind == DIELECTRIC)
-        int_ior, ext_ior = geo.materials.iors(surf.material, is_glass)
-        f, reflected, refracted, scale = dielectric_interface(d, surf.ns, int_ior, ext_ior)
-        choose_reflect = rng.next_float32() < f
-        new_d = dr.select(is_glass, dr.select(choose_reflect, reflected, refracted), new_d)
-        weight = dr.select(is_glass, Array3f(dr.select(choose_reflect, 1.0, scale)), weight)
-        new_eta = dr.select(is_glass & ~choose_reflect, eta / dr.sqrt(scale), eta)
-        delta |= is_glass
-
-    if PLASTIC in geo.materials.kinds:
-        L, new_d, weight, pdf, delta, rays = _plastic(geo, rng, surf, wi, d, beta, L, active_next & (kind == PLASTIC),
-                                                      new_d, weight, pdf, delta, rays)
-
-    path.L, path.beta, path.eta, path.rays = L, beta * weight, new_eta, rays
-    path.o, path.d, path.skip, path.prev_delta, path.prev_pdf = surf.p, new_d, surf.prim, delta, pdf
-    return active_next
-
-
-def _plastic(geo, rng, surf, wi, d, beta, L, is_plastic, new_d, weight, pdf, delta, rays):
-    """Mitsuba's smooth plastic (one-sided): a shadow ray for its diffuse layer, then the specular layer
-    (Fresnel-weighted mirror) or the diffuse layer (cosine-weighted), chosen with Mitsuba's probability."""
-    ns = surf.ns
-    cos_i = dr.dot(ns, wi)
-    is_plastic &= cos_i > 0
-    spec, (eta, inv_eta2, fdr_int, spec_weight, nonlinear) = geo.materials.plastic(surf.material, is_plastic)
-    albedo = geo.materials.albedo_at(surf, is_plastic)
-    f_i = fresnel_dielectric(cos_i, eta)[0]
-    p_spec = plastic.specular_probability(f_i, spec_weight)
+    bsdf = SurfaceBSDF(geo.materials, surf, wi, active_next)
     if geo.has_lights:
-        ds = sample_direct(geo, surf, ns, Array3f(1.0), rng.next_float32(), rng.next_float32(), rng.next_float32(),
-                           is_plastic)
-        f_o = fresnel_dielectric(dr.maximum(ds.cos_x, 0.0), eta)[0]
-        value = ds.value * plastic.diffuse_layer(albedo, fdr_int, nonlinear, inv_eta2, f_i, f_o)
-        w_nee = power_heuristic(ds.pdf_light, (1.0 - p_spec) * dr.maximum(ds.cos_x, 0.0) / dr.pi)
-        L += dr.select(is_plastic, beta * value * w_nee, Array3f(0.0))
-        rays += dr.select(is_plastic, 1, 0)
-    choose_spec = rng.next_float32() < p_spec
-    local = square_to_cosine_hemisphere(rng.next_float32(), rng.next_float32())
-    f_o = fresnel_dielectric(local.z, eta)[0]
-    diffuse_weight = plastic.diffuse_layer(albedo, fdr_int, nonlinear, inv_eta2, f_i, f_o) / (1.0 - p_spec)
-    new_d = dr.select(is_plastic, dr.select(choose_spec, reflect(d, ns), to_world(local, ns)), new_d)
-    weight = dr.select(is_plastic, dr.select(choose_spec, spec * (f_i / p_spec), diffuse_weight), weight)
-    pdf = dr.select(is_plastic & ~choose_spec, (1.0 - p_spec) * local.z / dr.pi, pdf)
-    delta |= is_plastic & choose_spec
-    return L, new_d, weight, pdf, delta, rays
+        nee = active_next & bsdf.smooth & bsdf.lit
+        geo.keep(L, nee, active_next, rng, bsdf.state())
+        ds = sample_direct(geo, surf, bsdf, rng.next_float32(), rng.next_float32(), rng.next_float32(), nee)
+        L += dr.select(nee, beta * ds.value * power_heuristic(ds.pdf_light, ds.pdf_bsdf), Array3f(0.0))
+        rays += dr.select(nee, 1, 0)
+    u1 = rng.next_float32()
+    bs, weight = bsdf.sample(u1, Array2f(rng.next_float32(), rng.next_float32()), active_next)
+    path.L, path.beta, path.eta, path.rays = L, beta * weight, path.eta * bs.eta, rays
+    path.o, path.d, path.skip = surf.p, bs.wo, surf.prim
+    path.prev_delta, path.prev_pdf = has_flag(bs.sampled_type, DELTA), bs.pdf
+    return active_next

@@ -1,11 +1,13 @@
 """The report's branching estimator, traced level by level as a wavefront.
 
-At every diffuse vertex: N shadow rays to the area lights (eq. 10) and M rays into the hemisphere
-(eq. 11), each child carrying 1/M of the estimate; a mirror spawns its reflected ray (eq. 5); glass
-spawns both the reflected and the refracted ray, weighted by F and 1 - F (eq. 7-8, 12). Light that an
-indirect ray reaches is not added again: eq. 10 counted it, so only rays leaving the camera or a
-specular vertex see emitters. A vertex is expanded only while the paths it starts can still
-contribute at `max_depth` (the report's depth D is max_depth D + 2).
+Every BSDF goes through the interface of tracer.materials (materials.bsdf). At every vertex whose BSDF has a
+non-delta lobe (the report's diffuse vertex): N shadow rays to the lights weighted by the BSDF (eq. 10) and M
+directions sampled from the BSDF (eq. 11; `uniform`: uniform over the hemisphere for BSDFs that only reflect
+diffusely), each child carrying 1/M of the estimate. A BSDF whose lobes are all delta spawns one sampled ray
+(a mirror: eq. 5), or every lobe where its kind lists them (glass: the reflected and the refracted ray,
+weighted by F and 1 - F, eq. 7-8, 12). Light that a ray sampled from a non-delta lobe reaches is not added
+again: eq. 10 counted it, so only rays leaving the camera or a delta lobe see emitters. A vertex is expanded
+only while the paths it starts can still contribute at `max_depth` (the report's depth D is max_depth D + 2).
 """
 from __future__ import annotations
 
@@ -15,12 +17,12 @@ from typing import TYPE_CHECKING
 import drjit as dr
 
 from ..geometry import SceneGeometry, Surface
-from ..materials import CONDUCTOR, DIELECTRIC, DIFFUSE
-from ..materials.dielectric import dielectric_interface
-from ..materials.fresnel import reflect
-from ..jit import NO_PRIM, PCG32, Array3f, Bool, Float, UInt32, segment_of
-from ..sampling import seeded_rng, square_to_cosine_hemisphere, square_to_uniform_hemisphere, to_world
-from .direct import facing_normal, sample_direct
+from ..materials import KINDS, SurfaceBSDF
+from ..materials.bsdf import DELTA, DIFFUSE_REFLECTION, LOBES, SMOOTH, BSDFSample, has_flag
+from ..materials.dispatch import split_count
+from ..jit import NO_PRIM, PCG32, Array2f, Array3f, Bool, Float, UInt32, segment_of
+from ..sampling import seeded_rng, square_to_uniform_hemisphere
+from .direct import sample_direct
 
 if TYPE_CHECKING:
     from ..estimators import BranchingEstimator
@@ -45,13 +47,14 @@ class Wavefront:
 
 @dataclass
 class Vertices:
-    """Where one level's rays ended, classified: the surface found, its shading normal turned towards the
-    incoming ray, its material kind, and whether it is a diffuse vertex lit from that side."""
+    """Where one level's rays ended, classified: the surface found, its material kind, whether its BSDF is
+    not black from the incoming ray's side (`lit`), and whether it is lit with a non-delta lobe (`smooth`:
+    the report's diffuse vertex)."""
 
     surf: Surface
-    ns: Array3f
     kind: UInt32
-    diffuse: Bool
+    lit: Bool
+    smooth: Bool
 
 
 def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int, settings: BranchingEstimator,
@@ -67,14 +70,15 @@ def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int
     if vertex + 1 > max_depth:
         dr.eval(radiance)
         return None, len(wave)
-    kind = geo.materials.kind(surf.material, surf.valid)
-    ns, lit = facing_normal(geo, surf, wi)
-    diffuse = surf.valid & lit & (kind == DIFFUSE)
-    dr.eval(radiance, surf.p, surf.prim, surf.material, ns, kind, diffuse)
+    bsdf = SurfaceBSDF(geo.materials, surf, wi, surf.valid)
+    at = Vertices(surf, bsdf.kind, surf.valid & bsdf.lit, surf.valid & bsdf.lit & bsdf.smooth)
+    dr.eval(radiance, surf.p, surf.n, surf.ns, surf.prim, surf.material, at.kind, at.lit, at.smooth)
+    if surf.uv is not None:
+        dr.eval(surf.uv)
     rays = len(wave)
-    if geo.has_lights and DIFFUSE in geo.materials.kinds:
-        rays += _shadow_rays(geo, surf, ns, diffuse, wave, settings.direct, radiance, seed)
-    return _spawn(geo, Vertices(surf, ns, kind, diffuse), wave, vertex, max_depth, settings, seed), rays
+    if geo.has_lights and any(KINDS[code].FLAGS & SMOOTH for code in geo.materials.kinds):
+        rays += _shadow_rays(geo, surf, at.smooth, wave, settings.direct, radiance, seed)
+    return _spawn(geo, at, wave, vertex, max_depth, settings, seed), rays
 
 
 def _rng(n: int, seed: int, stream: int) -> PCG32:
@@ -82,20 +86,22 @@ def _rng(n: int, seed: int, stream: int) -> PCG32:
 
 
 def _gather_surface(surf: Surface, lane: UInt32) -> Surface:
+    uv = None if surf.uv is None else tuple(dr.gather(Float, c, lane) for c in surf.uv)
     return Surface(dr.gather(Array3f, surf.p, lane), dr.gather(Array3f, surf.n, lane),
                    dr.gather(Array3f, surf.ns, lane), dr.gather(UInt32, surf.material, lane),
-                   dr.gather(UInt32, surf.prim, lane), Bool(True))
+                   dr.gather(UInt32, surf.prim, lane), Bool(True), uv)
 
 
-def _shadow_rays(geo, surf, ns, diffuse, wave, n_direct, radiance, seed) -> int:
-    """Eq. 10 at every diffuse vertex: the mean of N shadow rays, splatted with the vertex's weight."""
-    vertices = dr.compress(diffuse)
+def _shadow_rays(geo, surf, smooth, wave, n_direct, radiance, seed) -> int:
+    """Eq. 10 at every vertex with a non-delta lobe: the mean of N shadow rays, splatted with the vertex's
+    weight."""
+    vertices = dr.compress(smooth)
     count = dr.width(vertices)
     if count == 0:
         return 0
     sub = _gather_surface(surf, vertices)
-    estimate = direct_estimate(geo, sub, dr.gather(Array3f, ns, vertices), geo.materials.albedo(sub.material, True),
-                               _rng(count, seed, 1), n_direct)
+    bsdf = SurfaceBSDF(geo.materials, sub, -dr.gather(Array3f, wave.d, vertices), Bool(True))
+    estimate = direct_estimate(geo, sub, bsdf, _rng(count, seed, 1), n_direct)
     weight = dr.gather(Array3f, wave.weight, vertices)
     dr.scatter_add(radiance, weight * estimate, dr.gather(UInt32, wave.sample, vertices))
     dr.eval(radiance)
@@ -103,37 +109,40 @@ def _shadow_rays(geo, surf, ns, diffuse, wave, n_direct, radiance, seed) -> int:
 
 
 @dr.syntax
-def direct_estimate(geo: SceneGeometry, surf: Surface, ns: Array3f, albedo: Array3f, rng: PCG32,
-                    n_direct: int) -> Array3f:
-    """Eq. 10: (1/N) sum of f Le cos_x cos_y / (d^2 pdf) over N shadow rays, looped within each lane."""
+def direct_estimate(geo: SceneGeometry, surf: Surface, bsdf: SurfaceBSDF, rng: PCG32, n_direct: int) -> Array3f:
+    """Eq. 10: (1/N) sum of f cos_x Le cos_y / (d^2 pdf) over N shadow rays, looped within each lane."""
     total, i = Array3f(0.0), UInt32(0)
     while i < n_direct:
-        ds = sample_direct(geo, surf, ns, albedo, rng.next_float32(), rng.next_float32(), rng.next_float32(),
-                           Bool(True))
+        ds = sample_direct(geo, surf, bsdf, rng.next_float32(), rng.next_float32(), rng.next_float32(), Bool(True))
         total += ds.value
         i += 1
     return total * (1.0 / n_direct)
 
 
-def hemisphere_sample(albedo: Array3f, u1: Float, u2: Float, hemisphere: str) -> tuple[Array3f, Array3f]:
-    """A direction of eq. 11 about +z and its weight f cos(theta) / pdf."""
-    if hemisphere == "cosine":
-        return square_to_cosine_hemisphere(u1, u2), albedo               # (rho/pi) cos / (cos/pi)
-    local = square_to_uniform_hemisphere(u1, u2)
-    return local, albedo * (2.0 * local.z)                               # (rho/pi) cos / (1/(2 pi))
+def indirect_sample(bsdf: SurfaceBSDF, u1: Float, u2: Array2f, hemisphere: str) -> tuple[BSDFSample, Array3f]:
+    """A direction of eq. 11 and its weight f |cos| / pdf: sampled from the BSDF, or (`uniform`) uniform over
+    the hemisphere where the BSDF only reflects diffusely ((rho/pi) cos / (1/(2 pi)) for `diffuse`)."""
+    bs, weight = bsdf.sample(u1, u2, Bool(True))
+    if hemisphere == "uniform":
+        uniform = bsdf.kinds_where(lambda m: m.FLAGS & LOBES == DIFFUSE_REFLECTION)
+        wo = bsdf.to_world(square_to_uniform_hemisphere(u2.x, u2.y))
+        bs.wo = dr.select(uniform, wo, bs.wo)
+        weight = dr.select(uniform, bsdf.eval(wo, uniform) * dr.two_pi, weight)
+    return bs, weight
 
 
-def _child_counts(geo, at: Vertices, wave: Wavefront, vertex: int, max_depth: int,
-                  settings: BranchingEstimator) -> UInt32:
-    """Children each vertex spawns: M at a diffuse vertex (while they can still reach a light within
-    max_depth), one at the front of a mirror, two at glass, none where the ray left the scene."""
+def _child_counts(geo, at: Vertices, vertex: int, max_depth: int, settings: BranchingEstimator) -> UInt32:
+    """Children each vertex spawns: M where its BSDF has a non-delta lobe (while they can still reach a
+    light within max_depth, or see one through a delta lobe), the listed lobes of a kind that splits (two
+    at glass), one elsewhere (a mirror's front), none where the ray left the scene or the BSDF is black."""
     count = UInt32(0)
-    if DIFFUSE in geo.materials.kinds and vertex + 2 <= max_depth:
-        count = dr.select(at.diffuse, settings.indirect, count)
-    if CONDUCTOR in geo.materials.kinds:
-        count = dr.select((at.kind == CONDUCTOR) & (dr.dot(at.surf.ns, wave.d) < 0), 1, count)
-    if DIELECTRIC in geo.materials.kinds:
-        count = dr.select(at.kind == DIELECTRIC, 2, count)
+    for code in sorted(geo.materials.kinds):
+        flags = KINDS[code].FLAGS
+        n = split_count(code) or 1
+        if flags & SMOOTH:
+            n = settings.indirect if vertex + 2 <= max_depth or flags & DELTA else 0
+        if n:
+            count = dr.select((at.kind == code) & at.lit, n, count)
     return dr.select(at.surf.prim != NO_PRIM, count, 0)
 
 
@@ -154,42 +163,26 @@ def _children(count: UInt32) -> tuple[UInt32, UInt32]:
 
 def _spawn(geo, at: Vertices, wave: Wavefront, vertex: int, max_depth: int, settings: BranchingEstimator,
            seed: int) -> Wavefront | None:
-    """The next level: M hemisphere rays per diffuse vertex (while their vertex can still reach a light
-    within max_depth), the mirror's reflection, glass's reflection and refraction."""
-    surf, ns, kind = at.surf, at.ns, at.kind
-    parent, slot = _children(_child_counts(geo, at, wave, vertex, max_depth, settings))
+    """The next level: M sampled directions per vertex with a non-delta lobe (while their vertex can still
+    contribute within max_depth), every lobe of a kind that splits (glass's reflection and refraction), one
+    sampled direction elsewhere (a mirror's reflection)."""
+    parent, slot = _children(_child_counts(geo, at, vertex, max_depth, settings))
     n = dr.width(parent)
     if n == 0:
         return None
-    k = dr.gather(UInt32, kind, parent)
-    p = dr.gather(Array3f, surf.p, parent)
-    d = dr.gather(Array3f, wave.d, parent)
-    n_s = dr.gather(Array3f, ns, parent)
-    weight = dr.gather(Array3f, wave.weight, parent)
-    new_d, factor = Array3f(0.0), Array3f(0.0)
+    surf = _gather_surface(at.surf, parent)
+    bsdf = SurfaceBSDF(geo.materials, surf, -dr.gather(Array3f, wave.d, parent), Bool(True))
     rng = _rng(n, seed, 2)
-    if DIFFUSE in geo.materials.kinds:
-        is_diffuse = k == DIFFUSE
-        albedo = geo.materials.albedo(dr.gather(UInt32, surf.material, parent), is_diffuse)
-        local, f = hemisphere_sample(albedo, rng.next_float32(), rng.next_float32(), settings.hemisphere)
-        new_d = dr.select(is_diffuse, to_world(local, n_s), new_d)
-        factor = dr.select(is_diffuse, f * (1.0 / settings.indirect), factor)
-    if CONDUCTOR in geo.materials.kinds:
-        is_mirror = k == CONDUCTOR
-        n_mirror = dr.gather(Array3f, surf.ns, parent)
-        new_d = dr.select(is_mirror, reflect(d, n_mirror), new_d)
-        weight_mirror = geo.materials.conductor_weight(dr.gather(UInt32, surf.material, parent), -dr.dot(n_mirror, d), is_mirror)
-        factor = dr.select(is_mirror, weight_mirror, factor)
-    if DIELECTRIC in geo.materials.kinds:
-        is_glass = k == DIELECTRIC
-        int_ior, ext_ior = geo.materials.iors(dr.gather(UInt32, surf.material, parent), is_glass)
-        fr, reflected, refracted, scale = dielectric_interface(d, dr.gather(Array3f, surf.ns, parent), int_ior, ext_ior)
-        is_reflection = slot == 0
-        new_d = dr.select(is_glass, dr.select(is_reflection, reflected, refracted), new_d)
-        factor = dr.select(is_glass, Array3f(dr.select(is_reflection, fr, (1.0 - fr) * scale)), factor)
-    specular = k != DIFFUSE
+    u1 = rng.next_float32()
+    bs, factor = indirect_sample(bsdf, u1, Array2f(rng.next_float32(), rng.next_float32()), settings.hemisphere)
+    new_d, delta = bs.wo, has_flag(bs.sampled_type, DELTA)
+    factor = dr.select(bsdf.smooth, factor * (1.0 / settings.indirect), factor)
+    split = bsdf.kinds_where(lambda m: getattr(m, "SPLIT", 0))
+    if any(split_count(code) for code in geo.materials.kinds):
+        wo, weight = bsdf.split(slot, split)
+        new_d, factor, delta = dr.select(split, wo, new_d), dr.select(split, weight, factor), delta | split
     inf = Float(float("inf"))
-    out = Wavefront(p, new_d, Float(0.0), inf, weight * factor, dr.gather(UInt32, wave.sample, parent),
-                    dr.gather(UInt32, surf.prim, parent), specular)
+    out = Wavefront(surf.p, new_d, Float(0.0), inf, dr.gather(Array3f, wave.weight, parent) * factor,
+                    dr.gather(UInt32, wave.sample, parent), surf.prim, delta)
     dr.eval(out.o, out.d, out.weight, out.sample, out.skip, out.sees_emitters)
     return out

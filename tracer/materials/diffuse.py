@@ -1,13 +1,15 @@
-"""Mitsuba's `diffuse`, and `twosided` around it: the Lambertian BRDF."""
+"""Mitsuba's `diffuse`: the Lambertian BRDF (a BSDF kind, materials.bsdf)."""
+import drjit as dr
 import numpy as np
 
-from ..jit import Array3f
-from ..sampling import INV_PI
+from ..jit import Array2f, Array3f, Bool, Float, UInt32
+from ..sampling import INV_PI, square_to_cosine_hemisphere
 from ..spectra import rgb
-from .bsdf import BSDF
+from .bsdf import BSDF, DIFFUSE_REFLECTION, BSDFSample, front, zero_unless
 from .reading import check_unit_interval
 
-PLUGINS = {"diffuse": ("reflectance",), "twosided": ("allow_transmission",)}
+NAME, FLAGS = "diffuse", DIFFUSE_REFLECTION
+PLUGINS = {"diffuse": ("reflectance",)}
 
 
 def diffuse_brdf(albedo: Array3f) -> Array3f:
@@ -15,27 +17,34 @@ def diffuse_brdf(albedo: Array3f) -> Array3f:
     return albedo * INV_PI
 
 
+def params(tables, surf, active: Bool) -> Array3f:
+    """The reflectance rho at the surface point (textured where the material is)."""
+    return tables.reflectance(surf, active)
+
+
+def sample(rho: Array3f, wi: Array3f, u1: Float, u2: Array2f, active: Bool) -> tuple[BSDFSample, Array3f]:
+    """A cosine-weighted direction: weight (rho / pi) cos / (cos / pi) = rho (the report's eq. 11, cosine)."""
+    wo = square_to_cosine_hemisphere(u2.x, u2.y)
+    return (BSDFSample(wo, wo.z * INV_PI, Float(1.0), UInt32(DIFFUSE_REFLECTION)),
+            zero_unless(active & front(wi), rho))
+
+
+def eval(rho: Array3f, wi: Array3f, wo: Array3f, active: Bool) -> Array3f:
+    return zero_unless(active & front(wi, wo), diffuse_brdf(rho) * wo.z)
+
+
+def pdf(rho: Array3f, wi: Array3f, wo: Array3f, active: Bool) -> Float:
+    return dr.select(active & front(wi, wo), wo.z * INV_PI, 0.0)
+
+
+def albedo(rho: Array3f) -> Array3f:
+    return rho
+
+
 def from_xml(ctx, props, node) -> BSDF:
-    if node.attrib.get("type") == "twosided":
-        return _twosided(ctx, props, node)
     rho = props.colour("reflectance", 0.5, textured=True)
     props.finish()
     if not isinstance(rho, np.ndarray):
         return BSDF("diffuse", (0.0, 0.0, 0.0), texture=rho)
     check_unit_interval(ctx, node, "diffuse reflectance", rho)
     return BSDF("diffuse", rgb(rho))
-
-
-def _twosided(ctx, props, node) -> BSDF:
-    inner = props.children("bsdf")
-    if props.get("allow_transmission", False, ("boolean",)):
-        raise ctx.error(props.values["allow_transmission"], "allow_transmission = true is not supported")
-    props.finish()
-    if len(inner) not in (1, 2):
-        raise ctx.error(node, "twosided wraps one bsdf (or two)")
-    bases = [ctx.bsdf(b) for b in inner]
-    if any(b.kind != "diffuse" or b.twosided for b in bases):
-        raise ctx.error(node, "twosided supports one-sided diffuse bsdfs only")
-    if len(bases) == 2 and bases[0] != bases[1]:
-        raise ctx.error(node, "twosided with different front and back bsdfs is unsupported")
-    return BSDF("diffuse", bases[0].reflectance, twosided=True)

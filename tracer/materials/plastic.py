@@ -1,16 +1,18 @@
-"""Mitsuba's smooth `plastic`: a dielectric interface over a diffuse base (its per-material table and the
-layer model's terms; the path integrator samples it)."""
+"""Mitsuba's smooth `plastic`: a dielectric interface over a diffuse base (a BSDF kind, materials.bsdf): its
+per-material table and the layer model's terms."""
 from __future__ import annotations
 
 import drjit as dr
 import numpy as np
 
-from ..jit import Array3f, Bool, Float, UInt32
+from ..jit import Array2f, Array3f, Bool, Float, UInt32
+from ..sampling import INV_PI, square_to_cosine_hemisphere
 from ..spectra import rgb
-from .bsdf import BSDF
+from .bsdf import BSDF, DELTA_REFLECTION, DIFFUSE_REFLECTION, BSDFSample, front, reflect_local, zero_unless
 from .reading import check_unit_interval, read_ior
-from .fresnel import fresnel_diffuse_reflectance
+from .fresnel import fresnel_diffuse_reflectance, fresnel_dielectric
 
+NAME, FLAGS = "plastic", DELTA_REFLECTION | DIFFUSE_REFLECTION
 PLUGINS = {"plastic": ("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "nonlinear")}
 FIELDS = 8
 
@@ -31,24 +33,55 @@ def from_xml(ctx, props, node) -> BSDF:
                 nonlinear=bool(nonlinear), texture=texture)
 
 
-def table(materials: list) -> Float:
+def table(materials: list) -> np.ndarray:
     """Per material, for smooth plastic: specular reflectance, then eta, 1 / eta^2, the interior's diffuse
     Fresnel reflectance, the specular sampling weight (Mitsuba's: the specular share of the two mean
     reflectances) and whether the internal scattering is nonlinear."""
     rows = np.zeros((len(materials), FIELDS))
     for i, b in enumerate(materials):
-        if b.kind == "plastic":
+        if b.kind == NAME:
             eta = b.int_ior / b.ext_ior
             s_mean, d_mean = np.mean(b.specular_reflectance), np.mean(b.reflectance)
             rows[i] = [*b.specular_reflectance, eta, 1.0 / (eta * eta), fresnel_diffuse_reflectance(1.0 / eta),
                        s_mean / (d_mean + s_mean), float(b.nonlinear)]
-    return Float(rows.ravel())
+    return rows
 
 
-def lookup(rows: Float, material: UInt32, active: Bool) -> tuple[Array3f, list[Float]]:
-    """A plastic material's specular reflectance and [eta, 1 / eta^2, fdr_int, specular weight, nonlinear]."""
-    spec = Array3f(*(dr.gather(Float, rows, material * FIELDS + k, active) for k in range(3)))
-    return spec, [dr.gather(Float, rows, material * FIELDS + 3 + k, active) for k in range(5)]
+def params(tables, surf, active: Bool) -> tuple:
+    """Specular reflectance, [eta, 1 / eta^2, fdr_int, specular weight, nonlinear], diffuse reflectance."""
+    r = tables.row(NAME, surf.material, active)
+    return Array3f(*r[0:3]), r[3:8], tables.reflectance(surf, active)
+
+
+def sample(p, wi: Array3f, u1: Float, u2: Array2f, active: Bool) -> tuple[BSDFSample, Array3f]:
+    """The specular layer (a Fresnel-weighted mirror) or the diffuse layer (cosine-weighted), chosen with
+    Mitsuba's probability."""
+    spec, (eta, inv_eta2, fdr_int, spec_weight, nonlinear), rho = p
+    f_i = fresnel_dielectric(wi.z, eta)[0]
+    p_spec = specular_probability(f_i, spec_weight)
+    choose_spec = u1 < p_spec
+    local = square_to_cosine_hemisphere(u2.x, u2.y)
+    f_o = fresnel_dielectric(local.z, eta)[0]
+    diffuse_weight = diffuse_layer(rho, fdr_int, nonlinear, inv_eta2, f_i, f_o) / (1.0 - p_spec)
+    bs = BSDFSample(dr.select(choose_spec, reflect_local(wi), local),
+                    dr.select(choose_spec, p_spec, (1.0 - p_spec) * local.z * INV_PI), Float(1.0),
+                    dr.select(choose_spec, UInt32(DELTA_REFLECTION), UInt32(DIFFUSE_REFLECTION)))
+    weight = dr.select(choose_spec, spec * (f_i / p_spec), diffuse_weight)
+    return bs, zero_unless(active & front(wi), weight)
+
+
+def eval(p, wi: Array3f, wo: Array3f, active: Bool) -> Array3f:
+    """The diffuse layer's f cos (the specular layer is a delta lobe)."""
+    spec, (eta, inv_eta2, fdr_int, spec_weight, nonlinear), rho = p
+    f_i, f_o = fresnel_dielectric(wi.z, eta)[0], fresnel_dielectric(dr.maximum(wo.z, 0.0), eta)[0]
+    value = diffuse_layer(rho, fdr_int, nonlinear, inv_eta2, f_i, f_o) * (wo.z * INV_PI)
+    return zero_unless(active & front(wi, wo), value)
+
+
+def pdf(p, wi: Array3f, wo: Array3f, active: Bool) -> Float:
+    spec, (eta, inv_eta2, fdr_int, spec_weight, nonlinear), rho = p
+    p_spec = specular_probability(fresnel_dielectric(wi.z, eta)[0], spec_weight)
+    return dr.select(active & front(wi, wo), (1.0 - p_spec) * wo.z * INV_PI, 0.0)
 
 
 def specular_probability(f_i: Float, specular_weight: Float) -> Float:

@@ -1,38 +1,41 @@
-"""The scene's materials as the kernels see them: per-material tables gathered by material index, and the
-lookups the integrators make. A table a scene's materials do not need is not built, and its code is not
-traced (plastic, textures, conductor Fresnel)."""
+"""The scene's materials as the kernels see them: per-material columns every kind shares (kind, two-sidedness,
+reflectance and its texture) and one table per kind (its module's `table`), gathered by material index. A
+table a scene's materials do not need is not built, and its code is not traced."""
 from __future__ import annotations
 
 import drjit as dr
 import numpy as np
 
 from ..jit import Array3f, Bool, Float, UInt32
-from . import plastic
-from .bsdf import BSDF, KIND_CODE
-from .fresnel import fresnel_conductor
+from .bsdf import BSDF
+from .dispatch import KIND_CODE, KINDS
 from .textures import TextureTables
 
 
 class MaterialTables:
-    """`kinds`: the material codes the kernel carries (DIFFUSE, CONDUCTOR, ...; default: those of `bsdfs`)."""
+    """`kinds`: the material codes the kernel carries (materials.DIFFUSE, CONDUCTOR, ...; default: those of
+    `bsdfs`)."""
 
     def __init__(self, bsdfs: list[BSDF], kinds: set[int] | None = None):
-        self.bsdfs = bsdfs
+        backs = [b.back for b in bsdfs if b.back is not None]
+        self.bsdfs = bsdfs + [b for i, b in enumerate(backs) if b not in bsdfs and b not in backs[:i]]
+        bsdfs = self.bsdfs
         self.kinds = {KIND_CODE[b.kind] for b in bsdfs} if kinds is None else set(kinds)
         self.textured = any(b.texture is not None for b in bsdfs)
-        # conductors other than perfect mirrors need their Fresnel term; without them the kernel has none
-        self.fresnel_conductors = any(b.kind == "conductor" and not b.perfect_mirror for b in bsdfs)
         self.any_twosided = any(b.twosided for b in bsdfs)
         rows = bsdfs or [BSDF("diffuse", (0.0, 0.0, 0.0))]   # an empty scene still gathers (masked off)
-        self._albedo = Float(np.array([b.reflectance for b in rows]).ravel())
+        self._reflectance = Float(np.array([b.reflectance for b in rows]).ravel())
         self._kind = UInt32([KIND_CODE[b.kind] for b in rows])
         self._twosided = UInt32([int(b.twosided) for b in rows])
-        self._int_ior = Float([b.int_ior for b in rows])
-        self._ext_ior = Float([b.ext_ior for b in rows])
+        self.any_back = bool(backs)
+        self._back = UInt32([bsdfs.index(b.back) if b.back is not None else i for i, b in enumerate(rows)])
         self.textures = TextureTables(rows) if self.textured else None
-        self._plastic = plastic.table(rows) if KIND_CODE["plastic"] in self.kinds else None
-        self._eta = Float(np.array([b.eta for b in rows]).ravel())
-        self._k = Float(np.array([b.k for b in rows]).ravel())
+        self._tables: dict[str, tuple[Float, int]] = {}
+        for code in sorted(self.kinds):
+            module = KINDS[code]
+            table = module.table(rows) if hasattr(module, "table") else None
+            if table is not None:
+                self._tables[module.NAME] = (Float(np.asarray(table).ravel()), table.shape[1])
 
     def index(self, bsdf: BSDF) -> int:
         return self.bsdfs.index(bsdf)
@@ -40,12 +43,9 @@ class MaterialTables:
     def kind(self, material: UInt32, active: Bool) -> UInt32:
         return dr.gather(UInt32, self._kind, material, active)
 
-    def albedo(self, material: UInt32, active: Bool) -> Array3f:
-        return dr.gather(Array3f, self._albedo, material, active)
-
-    def albedo_at(self, surf, active: Bool) -> Array3f:
-        """A diffuse surface's reflectance at its hit point: its texture's where it has one."""
-        rho = self.albedo(surf.material, active)
+    def reflectance(self, surf, active: Bool) -> Array3f:
+        """A material's reflectance at a surface point: its texture's where it has one."""
+        rho = dr.gather(Array3f, self._reflectance, surf.material, active)
         if not self.textured:
             return rho
         return self.textures.reflectance(surf.material, surf.uv, rho, active)
@@ -55,19 +55,16 @@ class MaterialTables:
             return Bool(False)
         return dr.gather(UInt32, self._twosided, material, active) != 0
 
-    def conductor_weight(self, material: UInt32, cos_i: Float, active: Bool) -> Array3f:
-        """A conductor's reflected weight: its specular reflectance times the Fresnel reflectance at cos_i
-        (exactly 1 in a scene whose conductors are all perfect mirrors)."""
-        if not self.fresnel_conductors:
-            return Array3f(1.0)
-        eta = dr.gather(Array3f, self._eta, material, active)
-        k = dr.gather(Array3f, self._k, material, active)
-        return self.albedo(material, active) * fresnel_conductor(cos_i, eta, k)
+    def back(self, material: UInt32, active: Bool) -> UInt32:
+        """The material seen from below: a two-sided material's back (the material itself where it has none)."""
+        if not self.any_back:
+            return material
+        return dr.gather(UInt32, self._back, material, active)
 
-    def iors(self, material: UInt32, active: Bool) -> tuple[Float, Float]:
-        return dr.gather(Float, self._int_ior, material, active), dr.gather(Float, self._ext_ior, material, active)
+    def has_table(self, kind: str) -> bool:
+        return kind in self._tables
 
-    def plastic(self, material: UInt32, active: Bool) -> tuple[Array3f, list[Float]]:
-        """A plastic material's specular reflectance and [eta, 1 / eta^2, fdr_int, specular weight,
-        nonlinear] (materials.plastic)."""
-        return plastic.lookup(self._plastic, material, active)
+    def row(self, kind: str, material: UInt32, active: Bool) -> list[Float]:
+        """Each field of the material's row in the kind's table (its module's `table`)."""
+        values, fields = self._tables[kind]
+        return [dr.gather(Float, values, material * fields + k, active) for k in range(fields)]
