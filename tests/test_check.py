@@ -208,7 +208,8 @@ def test_a_sensor_in_an_included_file_is_planned(tmp_path):
 
 def test_coverage_counts_scenes_and_ranks_blockers(tmp_path):
     """validate coverage on a miniature mitsuba-data: one scene both load, one the tracer refuses, one that
-    Mitsuba refuses too."""
+    Mitsuba refuses too, an include fragment (no sensor) reported as such, and a refusal naming a file in the
+    data's folder by its path relative to the folder."""
     from validation.coverage import markdown, survey
 
     scenes = tmp_path / "docs" / "scenes"
@@ -216,10 +217,37 @@ def test_coverage_counts_scenes_and_ranks_blockers(tmp_path):
     room = (SCENES / "stress" / "glass_sphere.xml").read_text()
     (scenes / "a.xml").write_text(room)
     (scenes / "b.xml").write_text(room.replace('<bsdf type="dielectric">', '<bsdf type="roughdielectric">'))
-    (scenes / "c.xml").write_text("<scene version='3.0.0'><shape type='nonsense'/></scene>")
+    (scenes / "c.xml").write_text(room.replace("</scene>", "<shape type='nonsense'/></scene>"))
+    (scenes / "d.xml").write_text("<scene version='3.0.0'><bsdf type='diffuse' id='white'/></scene>")
+    (scenes / "e.xml").write_text(room.replace("</scene>", "<shape type='obj'><string name='filename' "
+                                               "value='missing.obj'/></shape></scene>"))
     outcomes = survey(tmp_path, check_scenes=False)
     assert [(o.mitsuba == "loads", o.tracer) for o in outcomes] == [(True, "loads"), (True, "refused"),
+                                                                     (False, "refused"), (True, "fragment"),
                                                                      (False, "refused")]
-    text = markdown(outcomes, "validate coverage")
-    assert "| scene files | 3 |" in text and "| Mitsuba loads | 2 |" in text
+    text = markdown(outcomes, "validate coverage MITSUBA_DATA_DIR")
+    assert "| scene files | 5 |" in text and "| Mitsuba loads (of the 4 scenes) | 2 |" in text
+    assert "| include fragments (no sensor: parts of other scenes; not counted below) | 1 |" in text
+    assert "| docs/scenes/d.xml | loads | fragment | an include fragment: no sensor |" in text
     assert "| bsdf roughdielectric | 1 | 1 |" in text
+    assert "missing.obj" in outcomes[-1].refusals[0] and "docs/scenes" in outcomes[-1].refusals[0]
+    assert str(tmp_path) not in text + str([o.refusals + [o.mitsuba] for o in outcomes])
+
+
+def test_the_content_key_covers_files_an_included_fragment_names_through_the_includers_path(tmp_path):
+    """Mitsuba's test scenes name their meshes in an included fragment, found through the including file's
+    <path>: those meshes are part of the scene's content, so editing one changes the key."""
+    from validation.scenefile import files_digest, referenced_files
+
+    (tmp_path / "common" / "meshes").mkdir(parents=True)
+    (tmp_path / "tests" / "fragments").mkdir(parents=True)
+    mesh = tmp_path / "common" / "meshes" / "sphere.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (tmp_path / "tests" / "fragments" / "grid.xml").write_text(
+        '<scene version="3.0.0"><shape type="obj"><string name="filename" value="meshes/sphere.obj"/></shape></scene>')
+    scene = tmp_path / "tests" / "scene.xml"
+    scene.write_text('<scene version="3.0.0"><path value="../common"/><include filename="fragments/grid.xml"/></scene>')
+    assert [f.resolve() for f in referenced_files(scene)][1:] == [mesh, tmp_path / "tests" / "fragments" / "grid.xml"]
+    before = files_digest(scene)
+    mesh.write_text("v 0 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\n")
+    assert files_digest(scene) != before

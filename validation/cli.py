@@ -2,6 +2,8 @@
 exit codes for CI (0 all agree, 1 any disagrees, 3 any inconclusive and none disagrees, 2 usage or input error);
 `validate calibrate`: the check's measured false-alarm rate and power (reports/calibration.md);
 `validate stability`: the numerical stability suite (reports/stability.md);
+`validate coverage DIR`: the tracer on Mitsuba's own scenes (reports/mitsuba_scenes.md);
+`validate mitsuba-tests DIR`: Mitsuba's render tests with Mitsuba's protocol (reports/mitsuba_tests.md);
 `validate report SCENE.xml [--quick] [--size N]`: run (or resume) the sweeps and write the report;
 `validate reference SCENE.xml --max-depth D --size N`: render or load one cached Mitsuba reference;
 `validate faults`: the table of injected faults the statistical test catches;
@@ -45,6 +47,19 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument("mitsuba_data", type=Path, metavar="MITSUBA_DATA_DIR")
     v.add_argument("--output", "-o", type=Path, default=Path("reports/mitsuba_scenes.md"))
     v.add_argument("--no-check", action="store_true", help="only load the scenes (no renders)")
+    t = sub.add_parser("mitsuba-tests", help="write reports/mitsuba_tests.md: Mitsuba's own render tests "
+                       "(tests/scenes of a local copy of mitsuba-renderer/mitsuba-data) taken by the tracer, and by "
+                       "Mitsuba, with Mitsuba's protocol; exit 1 if a test the tracer renders fails",
+                       description="Mitsuba's render tests with Mitsuba's protocol (src/render/tests/test_renders.py): "
+                       "spp = 2,000,000 // pixels, seed 0, a per-pixel z-test in XYZ against the reference and its "
+                       "variance at Sidak's level, passed when 99.75% of the pixels accept. Renders are cached in "
+                       ".cache/mitsuba_tests by content.")
+    t.add_argument("mitsuba_data", type=Path, metavar="MITSUBA_DATA_DIR")
+    t.add_argument("--output", "-o", type=Path, help="the report (default reports/mitsuba_tests.md; with --only, "
+                   "none unless given)")
+    t.add_argument("--only", action="append", metavar="TEXT", help="only the tests whose <folder>/<scene>.xml "
+                   "contains TEXT (repeatable)")
+    t.add_argument("--no-mitsuba", action="store_true", help="do not put Mitsuba's own render through the protocol")
     st = sub.add_parser("stability", help="write reports/stability.md: the numerical stability suite")
     st.add_argument("--output", "-o", type=Path, default=Path("reports/stability.md"))
     r = sub.add_parser("report", help="write reports/<scene>/README.md (resumes an interrupted sweep)")
@@ -330,14 +345,25 @@ def _run(args) -> int:
         return 0
     if args.command == "coverage":
         from .coverage import FOLDERS, report
+        from .provenance import command_line
         from .scenefile import ScenePlanError
 
         if not any((args.mitsuba_data / f).is_dir() for f in FOLDERS):
             raise ScenePlanError(f"'{args.mitsuba_data}' holds none of {', '.join(FOLDERS)}: expected a copy of "
                                  "mitsuba-renderer/mitsuba-data")
-        command = "validate " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-        print(report(args.mitsuba_data, args.output, command, not args.no_check))
+        print(report(args.mitsuba_data, args.output, command_line(args.argv, args.mitsuba_data), not args.no_check))
         return 0
+    if args.command == "mitsuba-tests":
+        from .mitsuba_tests import SCENES, report
+        from .provenance import command_line
+        from .scenefile import ScenePlanError
+
+        if not (args.mitsuba_data / SCENES).is_dir():
+            raise ScenePlanError(f"'{args.mitsuba_data}' has no {SCENES} folder: expected a copy of "
+                                 "mitsuba-renderer/mitsuba-data")
+        output = args.output or (None if args.only else Path("reports/mitsuba_tests.md"))
+        return report(args.mitsuba_data, output, command_line(args.argv, args.mitsuba_data), args.only,
+                      not args.no_mitsuba)
     if args.command == "stability":
         from .stability import main as stability
 
@@ -377,6 +403,7 @@ def main(argv: list[str] | None = None) -> int:
     from tracer.scene import SceneError
 
     args = _parser().parse_args(argv)
+    args.argv = sys.argv[1:] if argv is None else list(argv)
     try:
         return _run(args)
     except BaseException as e:

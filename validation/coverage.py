@@ -2,10 +2,12 @@
 `mitsuba-renderer/mitsuba-data` repository: its docs/scenes, tests/scenes and scenes folders).
 
 For every scene file: does Mitsuba load it; does the tracer load it, or what it refuses (every refusal,
-one line each); where both load it, `validate check`'s verdict for the tracer's path estimator. Then the
-plugins and properties ranked by the scenes they alone block. Results are computed first
-(reports/mitsuba_scenes.json), formatted second (reports/mitsuba_scenes.md). Scene files are read, never
-copied: the repository states no licence.
+one line each); where both load it, `validate check`'s verdict for the tracer's path estimator. A file that
+declares no sensor, in itself or what it includes, is an include fragment (a part of other scenes): reported
+as such, not as refused. Then the plugins and properties ranked by the scenes they alone block. Paths in
+messages are relative to the data's folder: the report names the data by its repository. Results are
+computed first (reports/mitsuba_scenes.json), formatted second (reports/mitsuba_scenes.md). Scene files are
+read, never copied: the repository states no licence.
 """
 from __future__ import annotations
 
@@ -17,7 +19,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from .provenance import environment, write_json, write_text
+from .provenance import environment, relative_to, write_json, write_text
+from .scenefile import ScenePlanError, _parse
 
 FOLDERS = ("docs/scenes", "tests/scenes", "scenes")
 SPP = 32           # per pass: a check of Mitsuba's scenes at 16 x 32 spp, escalated up to MAX_SPP
@@ -28,7 +31,7 @@ MAX_SPP = 128
 class SceneOutcome:
     scene: str                       # relative to the mitsuba-data folder
     mitsuba: str                     # "loads" or Mitsuba's message
-    tracer: str                      # "loads" or "refused"
+    tracer: str                      # "loads", "refused" or "fragment" (no sensor: a part of other scenes)
     refusals: list[str] = field(default_factory=list)   # the tracer's refusal lines, file and line stripped
     verdict: str = ""                # agree | disagree | inconclusive | error: ... (both load)
     line: str = ""                   # the check's line
@@ -52,6 +55,15 @@ def blocker(refusal: str) -> str:
     return refusal[:80]
 
 
+def has_sensor(path: Path) -> bool:
+    """Whether the scene file declares a sensor, in itself or in the files it includes (those found)."""
+    try:
+        root = _parse(path)
+    except ScenePlanError:
+        return "<sensor" in path.read_text(errors="replace")
+    return root.find("sensor") is not None
+
+
 def _mitsuba_loads(path: Path) -> str:
     from .mitsuba_render import mitsuba
 
@@ -73,12 +85,12 @@ def survey(root: Path, check_scenes: bool = True) -> list[SceneOutcome]:
     outcomes = []
     for path in tqdm(scene_files(root), desc="Mitsuba's scenes", unit="scene"):
         start = time.perf_counter()
-        out = SceneOutcome(str(path.relative_to(root)), _mitsuba_loads(path), "loads")
+        out = SceneOutcome(str(path.relative_to(root)), relative_to(_mitsuba_loads(path), root), "loads")
         try:
             tracer.load_scene(path)
         except (tracer.SceneError, UserError) as e:
-            out.tracer = "refused"
-            out.refusals = [re.sub(r"^.*?:\d+: ", "", line) for line in str(e).splitlines()]
+            out.tracer = "refused" if has_sensor(path) else "fragment"
+            out.refusals = [relative_to(re.sub(r"^.*?:\d+: ", "", line), root) for line in str(e).splitlines()]
         if out.tracer == "loads" and out.mitsuba == "loads" and check_scenes:
             try:
                 result = check(path, TracerRenderer("path"), settings=Settings(spp=SPP, max_spp=MAX_SPP))
@@ -92,7 +104,8 @@ def survey(root: Path, check_scenes: bool = True) -> list[SceneOutcome]:
 
 def markdown(outcomes: list[SceneOutcome], command: str) -> str:
     n = len(outcomes)
-    mitsuba = [o for o in outcomes if o.mitsuba == "loads"]
+    fragments = [o for o in outcomes if o.tracer == "fragment"]
+    mitsuba = [o for o in outcomes if o.mitsuba == "loads" and o.tracer != "fragment"]
     loads = [o for o in mitsuba if o.tracer == "loads"]
     agree = [o for o in loads if o.verdict == "agree"]
     sole = Counter()
@@ -108,7 +121,9 @@ def markdown(outcomes: list[SceneOutcome], command: str) -> str:
              f"`validate check`'s function at 32 pixels on the longer side, 16 passes of {SPP} spp (escalated up to "
              f"{MAX_SPP} when inconclusive).", "",
              "| | scenes |", "|---|---:|",
-             f"| scene files | {n} |", f"| Mitsuba loads | {len(mitsuba)} |",
+             f"| scene files | {n} |",
+             f"| include fragments (no sensor: parts of other scenes; not counted below) | {len(fragments)} |",
+             f"| Mitsuba loads (of the {n - len(fragments)} scenes) | {len(mitsuba)} |",
              f"| the tracer renders as they stand (of those Mitsuba loads) | {len(loads)} |",
              f"| ... and agrees with Mitsuba | {len(agree)} |",
              f"| ... disagrees | {sum(o.verdict == 'disagree' for o in loads)} |",
@@ -123,6 +138,7 @@ def markdown(outcomes: list[SceneOutcome], command: str) -> str:
     lines += ["", "## Every scene", "", "| scene | Mitsuba | tracer | verdict or first refusal |", "|---|---|---|---|"]
     for o in outcomes:
         detail = (f"{o.verdict}: {o.line.split(']: ', 1)[-1]}" if o.line else
+                  "an include fragment: no sensor" if o.tracer == "fragment" else
                   o.verdict or (o.refusals[0] if o.refusals else ""))
         lines.append(f"| {o.scene} | {'loads' if o.mitsuba == 'loads' else 'fails'} | {o.tracer} | "
                      f"{detail.replace('|', '/')[:160]} |")

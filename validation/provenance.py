@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import shlex
 from importlib.metadata import version as package_version
 from pathlib import Path
 
@@ -22,6 +23,23 @@ def environment(command: str) -> list[str]:
             f"- Machine: {platform.machine()}, {platform.processor() or 'cpu'}, {len(os.sched_getaffinity(0))} cores, "
             f"{platform.platform()}",
             f"- Python {platform.python_version()}; {version()}; {packages}"]
+
+
+def command_line(argv: list[str], data: Path | None = None) -> str:
+    """The command as a report quotes it; the folder `data` (a local copy of a public repository) is named by
+    its role, MITSUBA_DATA_DIR, not by one machine's path."""
+    words = [shlex.quote(a) for a in argv]
+    if data is not None:
+        words = ["MITSUBA_DATA_DIR" if Path(a) == Path(data) else w for a, w in zip(argv, words)]
+    return "validate " + " ".join(words)
+
+
+def relative_to(text: str, data: Path) -> str:
+    """A message with the paths inside the folder `data` made relative to it, so that a report about a public
+    repository's files names them as that repository does, not by one machine's path."""
+    for prefix in dict.fromkeys((str(data.resolve()), str(data.absolute()), str(data))):
+        text = text.replace(prefix.rstrip("/") + "/", "")
+    return text
 
 
 def write_text(path: str | Path, text: str) -> Path:

@@ -139,18 +139,19 @@ def files_digest(path: str | Path) -> str:
 
 
 def referenced_files(path: Path) -> list[Path]:
-    """`path` and every existing file it names with a `filename` (meshes, textures, includes), recursively."""
+    """`path` and every existing file it names with a `filename` (meshes, textures, includes), recursively; an
+    included file's names are also looked up in the folders of the files that include it (their `<path>`s)."""
     seen: list[Path] = []
-    todo = [Path(path)]
+    todo: list[tuple[Path, list[Path]]] = [(Path(path), [])]
     while todo:
-        f = todo.pop()
+        f, inherited = todo.pop()
         if f in seen or not f.is_file():
             continue
         seen.append(f)
         text = f.read_text(errors="replace") if f.suffix.lower() == ".xml" else ""
-        folders = [f.parent] + [f.parent / p for p in re.findall(r'<path\s+value="([^"]+)"', text)]
+        folders = [f.parent] + [f.parent / p for p in re.findall(r'<path\s+value="([^"]+)"', text)] + inherited
         for name in re.findall(r'(?:name="filename"\s+value|<include\s+filename)="([^"$]+)"', text):
-            todo += [d / name for d in folders if (d / name).is_file()][:1]
+            todo += [(d / name, folders) for d in folders if (d / name).is_file()][:1]
     return [seen[0]] + sorted(seen[1:])
 
 
