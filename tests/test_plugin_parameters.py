@@ -107,6 +107,7 @@ SPECIAL = {   # (tag, kind, parameter) whose handling differs from the tag's oth
     ("emitter", "spot", "to_world"): HONOURED,
     ("emitter", "directional", "to_world"): HONOURED,
     ("shape", "sphere", "flip_normals"): REFUSED,
+    ("shape", "obj", "flip_tex_coords"): HONOURED,      # its test file has texture coordinates, the PLY's none
     ("bsdf", "dielectric", "specular_reflectance"): REFUSED,
 }
 
@@ -165,7 +166,7 @@ def _fingerprint(s) -> bytes:
                          cam.height, cam.rfilter, s.spp, s.seed, s.max_depth, s.rr_depth,
                          [(r.to_world.tolist(), r.bsdf, r.radiance) for r in s.rectangles],
                          [(m.vertices.tolist(), m.faces.tolist(), None if m.normals is None else m.normals.tolist(),
-                           m.bsdf, m.radiance) for m in s.meshes],
+                           m.bsdf, m.radiance, None if m.uvs is None else m.uvs.tolist()) for m in s.meshes],
                          [(x.center.tolist(), x.radius, x.bsdf) for x in s.spheres], s.environment,
                          [(c.to_world.tolist(), c.flipped) for c in s.cylinders],
                          None if s.envmap is None else (s.envmap.image.tolist(), s.envmap.to_world.tolist()),
@@ -174,7 +175,7 @@ def _fingerprint(s) -> bytes:
 
 
 def _outcome(tmp_path, tag, kind, param) -> str:
-    (tmp_path / "a.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (tmp_path / "a.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0.25\nf 1/1 2/1 3/1\n")
     (tmp_path / "b.obj").write_text("v 0 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\n")
     write_ply(tmp_path / "a.ply", True)
     write_ply(tmp_path / "b.ply", False, faces=FACES[:2])

@@ -272,8 +272,10 @@ class SceneGeometry:
         ns = self.meshes.shading_normal(prim, hit.b1, hit.b2, n)
         material = dr.gather(UInt32, self.prim_material, prim, valid)
         uv = None
-        if self.materials.textured:   # spheres and cylinders carry no textures
-            uv = self.meshes.uv(prim, valid, hit.b1, hit.b2, *self.rectangles.uv(hit.b1, hit.b2))
+        if self.materials.textured:
+            uv = (Float(0.0), Float(0.0))
+            for shapes in self.shape_sets:
+                uv = shapes.uv(prim, valid, hit.p, hit.b1, hit.b2, uv)
         return Surface(hit.p, n, ns, material, dr.select(valid, hit.prim, NO_PRIM), valid, uv)
 
     # ---- lights -----------------------------------------------------------------------------------

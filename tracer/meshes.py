@@ -17,9 +17,11 @@ class MeshError(ValueError):
     pass
 
 
-def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Vertices, triangles and per-vertex unit normals (None unless every corner names one), as read-only
-    arrays.
+def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Vertices, triangles, per-vertex unit normals (None unless every corner names one) and texture
+    coordinates (None when the file has no `vt`; NaN for a vertex whose corner names none, which Mitsuba
+    leaves undefined), as read-only arrays. The texture coordinates are as written (Mitsuba's
+    `flip_tex_coords` is applied by the shape).
 
     Vertices are keyed by their (position, texture coordinate, normal) index triple, numbered in order of
     first use, as Mitsuba does; polygons are fanned. A file that several shapes share is read once (until it
@@ -35,11 +37,12 @@ def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
 
 
 @lru_cache(maxsize=16)
-def _read_obj(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def _read_obj(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None,
+                                                             np.ndarray | None]:
     data = path.read_bytes()
     if b"\r" in data:     # universal newlines, as Python's text files read them
         data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
-    vertices, faces, vn = _parse_bulk(data) or _parse_statements(data.decode(), path)
+    vertices, faces, vn, uvs = _parse_bulk(data) or _parse_statements(data.decode(), path)
     if not len(faces):
         raise MeshError(f"{path}: the mesh has no faces")
     if not np.all(np.isfinite(vertices)):
@@ -49,16 +52,18 @@ def _read_obj(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndar
         if not np.all(length > 0):    # Mitsuba refuses these too
             raise MeshError(f"{path}: a vertex normal (vn) has zero length")
         vn /= length
-    for a in (vertices, faces, vn):
+    for a in (vertices, faces, vn, uvs):
         if a is not None:
             a.flags.writeable = False
-    return vertices, faces, vn
+    return vertices, faces, vn, uvs
 
 
-def _parse_statements(text: str, path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Any OBJ, statement by statement: vertices, triangles and the normals (vn, as written) of the
-    vertices when every corner names one."""
-    positions, normals, n_tex = [], [], 0
+def _parse_statements(text: str, path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None,
+                                                      np.ndarray | None]:
+    """Any OBJ, statement by statement: vertices, triangles, the normals (vn, as written) of the vertices
+    when every corner names one, and their texture coordinates (vt, its first two numbers) where the file
+    has any."""
+    positions, normals, texcoords = [], [], []
     keys: dict[tuple[int, int, int], int] = {}
     faces = []
     for lineno, line in enumerate(text.splitlines(), 1):
@@ -71,9 +76,11 @@ def _parse_statements(text: str, path: Path) -> tuple[np.ndarray, np.ndarray, np
                     raise ValueError(line)
                 (positions if parts[0] == "v" else normals).append([float(x) for x in parts[1:4]])
             elif parts[0] == "vt":
-                n_tex += 1
+                if len(parts) < 3:
+                    raise ValueError(line)
+                texcoords.append([float(x) for x in parts[1:3]])
             elif parts[0] == "f":
-                corners = [_corner(c, len(positions), n_tex, len(normals)) for c in parts[1:]]
+                corners = [_corner(c, len(positions), len(texcoords), len(normals)) for c in parts[1:]]
                 ids = [keys.setdefault(c, len(keys)) for c in corners]
                 faces += [(ids[0], ids[i], ids[i + 1]) for i in range(1, len(ids) - 1)]
         except (ValueError, IndexError):
@@ -83,7 +90,19 @@ def _parse_statements(text: str, path: Path) -> tuple[np.ndarray, np.ndarray, np
     vn = None
     if normals and all(k[2] >= 0 for k in order):
         vn = np.asarray(normals, float)[[k[2] for k in order]]
-    return vertices, np.asarray(faces, np.int64).reshape(-1, 3), vn
+    uvs = _texcoords(np.asarray(texcoords, float).reshape(-1, 2), np.array([k[1] for k in order], np.int64),
+                     len(order))
+    return vertices, np.asarray(faces, np.int64).reshape(-1, 3), vn, uvs
+
+
+def _texcoords(texcoords: np.ndarray, index: np.ndarray | None, count: int) -> np.ndarray | None:
+    """The `count` vertices' texture coordinates from their corners' indices into `texcoords` (NaN where -1,
+    or all where `index` is None: named by none); None when the file has no texture coordinates."""
+    if not len(texcoords):
+        return None
+    if index is None:
+        return np.full((count, 2), np.nan)
+    return np.where((index >= 0)[:, None], texcoords[np.maximum(index, 0)], np.nan)
 
 
 def _corner(token: str, n_pos: int, n_tex: int, n_norm: int) -> tuple[int, int, int]:
@@ -110,7 +129,7 @@ def _index(s: str, count: int) -> int:
 _ABSENT = np.iinfo(np.int64).min      # a corner's index that the corner does not name
 
 
-def _parse_bulk(text: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
+def _parse_bulk(text: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None] | None:
     """_parse_statements' mesh (of text.decode()) in bulk, with NumPy, for the OBJ files exporters write:
     "v", "vn" and "f" statements at the start of their lines, ASCII text, face corners "p", "p/t", "p/t/n"
     or "p//n" of plain integers (negative ones relative), any number of corners, anything else ignored as
@@ -141,7 +160,7 @@ def _parse_bulk(text: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]
         return None
     lines = partial(_lines, data, starts, ends)
     try:
-        positions, normals = _coordinates(lines(v)), _coordinates(lines(vn))
+        positions, normals, texcoords = _coordinates(lines(v)), _coordinates(lines(vn)), _coordinates(lines(vt), 2)
     except ValueError:
         return None
     corners = _face_corners(lines(f).tobytes())
@@ -154,7 +173,8 @@ def _parse_bulk(text: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]
     vertex, first = _weld(p, t, n)
     vertices = positions[p[first]]
     vn_out = normals[n[first]] if n is not None and (n[first] >= 0).all() else None
-    return vertices, _fan(vertex, per_face), vn_out
+    uvs = _texcoords(texcoords, None if t is None else t[first], len(first))
+    return vertices, _fan(vertex, per_face), vn_out, uvs
 
 
 def _lines(data: np.ndarray, starts: np.ndarray, ends: np.ndarray, marked: np.ndarray) -> np.ndarray:
@@ -167,12 +187,12 @@ def _lines(data: np.ndarray, starts: np.ndarray, ends: np.ndarray, marked: np.nd
     return data[np.repeat(marked, ends - starts + 1)]
 
 
-def _coordinates(lines: np.ndarray) -> np.ndarray:
-    """The first three numbers of each line (as Python's float reads them: NumPy's reader rounds as it does
+def _coordinates(lines: np.ndarray, count: int = 3) -> np.ndarray:
+    """The first `count` numbers of each line (as Python's float reads them: NumPy's reader rounds as it does
     and refuses the rest, "1_0" included); ValueError for a line it cannot read."""
     if not len(lines):
-        return np.zeros((0, 3))
-    return np.loadtxt(io.BytesIO(lines.tobytes()), usecols=(1, 2, 3), comments=None, ndmin=2)
+        return np.zeros((0, count))
+    return np.loadtxt(io.BytesIO(lines.tobytes()), usecols=tuple(range(1, count + 1)), comments=None, ndmin=2)
 
 
 def _face_corners(lines: bytes) -> tuple[np.ndarray, ...] | None:
@@ -348,9 +368,13 @@ def length_rows(a: np.ndarray) -> np.ndarray:
     return np.sqrt(dot_rows(a, a))[None]
 
 
-def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Vertices, triangles and per-vertex normals (None unless the file has nx, ny, nz) of a PLY file,
-    ASCII or binary (read with `plyfile`). Faces must be triangles, as Mitsuba requires."""
+PLY_TEXCOORDS = (("u", "v"), ("s", "t"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))  # Mitsuba's
+
+
+def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Vertices, triangles, per-vertex normals (None unless the file has nx, ny, nz) and texture coordinates
+    (None unless it has one of PLY_TEXCOORDS' pairs) of a PLY file, ASCII or binary (read with `plyfile`).
+    Faces must be triangles, as Mitsuba requires."""
     try:
         stat = path.stat()
         return _read_ply(path.resolve(), stat.st_size, stat.st_mtime_ns)
@@ -359,7 +383,8 @@ def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
 
 
 @lru_cache(maxsize=16)
-def _read_ply(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def _read_ply(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None,
+                                                             np.ndarray | None]:
     from plyfile import PlyData, PlyParseError
 
     try:
@@ -373,6 +398,8 @@ def _read_ply(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndar
         vertices = np.stack([np.asarray(vertex[k], float) for k in "xyz"], axis=1)
         normals = np.stack([np.asarray(vertex[k], float) for k in ("nx", "ny", "nz")], axis=1) \
             if all(k in names for k in ("nx", "ny", "nz")) else None
+        uvs = next((np.stack([np.asarray(vertex[k], float) for k in pair], axis=1) for pair in PLY_TEXCOORDS
+                    if all(k in names for k in pair)), None)
         index = "vertex_indices" if "vertex_indices" in face.data.dtype.names else "vertex_index"
         rows = face[index]
     except MeshError:
@@ -396,10 +423,10 @@ def _read_ply(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndar
         if not np.all(length > 0):
             raise MeshError(f"{path}: a vertex normal has zero length")
         normals = normals / length
-    for a in (vertices, faces, normals):
+    for a in (vertices, faces, normals, uvs):
         if a is not None:
             a.flags.writeable = False
-    return vertices, faces, normals
+    return vertices, faces, normals, uvs
 
 
 def _check_length(path: Path, ply) -> None:

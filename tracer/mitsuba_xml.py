@@ -856,7 +856,7 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
         bsdf = BSDF("diffuse", (0.0,) * 3 if emitters else (0.5,) * 3)
     to_world = props.get("to_world", np.eye(4), ("transform",))
     flip = props.get("flip_normals", False, ("boolean",))
-    props.ignore("silhouette_sampling_weight", "flip_tex_coords")   # differentiable rendering; textures
+    props.ignore("silhouette_sampling_weight")   # differentiable rendering
     name = node.attrib.get("id", f"{kind}@{node.line}")
     module = SHAPE_PLUGINS[kind]
     scene.shapes.append(module.from_xml(ctx, props, ShapeArgs(node, kind, to_world, flip, bsdf, radiance, name)))

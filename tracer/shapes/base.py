@@ -97,6 +97,12 @@ class ShapeSet:
         """The geometric normal at p where prim is one of the set's (n elsewhere)."""
         return n
 
+    def uv(self, prim: UInt32, valid, p: Array3f, b1: Float, b2: Float,
+           uv: tuple[Float, Float]) -> tuple[Float, Float]:
+        """Texture coordinates at the hit (p, local coordinates b1, b2) where prim is one of the set's, as
+        Mitsuba's shape of the kind computes them (`uv` elsewhere); only traced in scenes with textures."""
+        return uv
+
     def sample(self, shape, lo: int, u1: Float, u2: Float, geo) -> tuple[Array3f, Array3f, UInt32]:
         """A point uniform in area on an emitting `shape` (primitives from lo): (point, normal, primitive)."""
         raise NotImplementedError(f"{type(shape).__name__} shapes do not emit")

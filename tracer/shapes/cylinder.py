@@ -46,17 +46,14 @@ def from_xml(ctx, props, a: ShapeArgs) -> Cylinder:
     node = a.node
     if a.radiance is not None:
         raise ctx.error(node, "area emitters are supported on rectangle, disk, sphere and mesh shapes only")
-    if a.bsdf.texture is not None:
-        raise ctx.error(node, "a texture on a cylinder is unsupported; supported on rectangle and serialized shapes")
     axis = p1 - p0
     length = float(np.linalg.norm(axis))
     if length == 0 or radius <= 0:
         raise ctx.error(node, f"a cylinder needs p0 != p1 and a positive radius, got length {length}, radius {radius}")
     z = axis / length
-    x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
-    x /= np.linalg.norm(x)
+    x, y = coordinate_system(z)
     frame = np.eye(4)
-    frame[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1) @ np.diag([radius, radius, length])
+    frame[:3, :3] = np.stack([x, y, z], axis=1) @ np.diag([radius, radius, length])
     frame[:3, 3] = p0
     m = a.to_world @ frame
     cols = m[:3, :3].T
@@ -66,6 +63,17 @@ def from_xml(ctx, props, a: ShapeArgs) -> Cylinder:
         raise ctx.error(node, "a cylinder's to_world must keep it circular (equal scale across the axis, no shear "
                               "or mirroring)")
     return Cylinder(m, a.bsdf, a.flip, a.name)
+
+
+def coordinate_system(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors completing the unit n to a right-handed frame, as Mitsuba's `coordinate_system` (Duff
+    et al. 2017, "Building an orthonormal basis, revisited"): the tube's local x and y, from which its texture
+    coordinates' angle is measured."""
+    sign = 1.0 if n[2] >= 0 else -1.0
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    return (np.array([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]]),
+            np.array([b, sign + n[1] * n[1] * a, -n[1]]))
 
 
 def ray_cylinder(o: Array3f, d: Array3f, to_local: np.ndarray, t_min, t_max, leaving: Bool) -> Float:
@@ -113,6 +121,20 @@ class CylinderSet(ShapeSet):
         for k, c in enumerate(self.shapes):
             n = dr.select(prim == self.base + k, _radial_normal(c, p), n)
         return n
+
+
+    def uv(self, prim, valid, p, b1, b2, uv):
+        """Mitsuba's: (phi / 2 pi, z) of p in the tube's frame, phi in [0, 2 pi) from local +x towards +y."""
+        u, v = uv
+        for k, c in enumerate(self.shapes):
+            m = np.linalg.inv(c.to_world)
+            x, y, z = (p.x * float(m[r, 0]) + p.y * float(m[r, 1]) + p.z * float(m[r, 2]) + float(m[r, 3])
+                       for r in range(3))
+            phi = dr.atan2(y, x)
+            phi = dr.select(phi < 0, phi + 2.0 * dr.pi, phi)
+            here = prim == self.base + k
+            u, v = dr.select(here, phi * (0.5 / dr.pi), u), dr.select(here, z, v)
+        return u, v
 
 
 def _radial_normal(c: Cylinder, p: Array3f) -> Array3f:

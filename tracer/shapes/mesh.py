@@ -68,6 +68,7 @@ class MeshFile:
     file: Path
     shape_index: int     # serialized only
     face_normals: bool
+    flip_tex_coords: bool = False   # v -> 1 - v (Mitsuba's default on OBJ files)
 
 
 def from_xml(ctx, props, a: ShapeArgs) -> MeshFile:
@@ -75,17 +76,16 @@ def from_xml(ctx, props, a: ShapeArgs) -> MeshFile:
     filename = props.get("filename", None, ("string",))
     face_normals = props.get("face_normals", False, ("boolean",))
     shape_index = props.get("shape_index", 0, ("integer",)) if kind == "serialized" else 0
+    flip_tex_coords = props.get("flip_tex_coords", kind == "obj", ("boolean",)) if kind != "serialized" else False
     props.finish()
     if not filename:
         raise ctx.error(node, f"{kind} shape needs a <string name=\"filename\">")
     file = ctx.resolve(filename)
     if not file.is_file():
         raise ctx.error(node, f"mesh file '{filename}' not found (looked in {', '.join(map(str, ctx.resolver))})")
-    if bsdf.texture is not None and kind != "serialized":
-        raise ctx.error(node, f"a texture on a {kind} shape is unsupported; supported on rectangle and serialized shapes")
     if shape_index < 0:
         raise ctx.error(node, f"shape_index must be non-negative, got {shape_index}")
-    return MeshFile(a, file, shape_index, face_normals)
+    return MeshFile(a, file, shape_index, face_normals, flip_tex_coords)
 
 
 def load(requests: list[MeshFile]) -> list[Mesh | MeshError]:
@@ -122,7 +122,7 @@ def _read(file: tuple[str, Path, int]) -> tuple | MeshError:
     try:
         if kind == "serialized":
             return read_serialized(path, shape_index)
-        return (*(read_obj if kind == "obj" else read_ply)(path), None)
+        return (read_obj if kind == "obj" else read_ply)(path)
     except MeshError as e:
         return e
 
@@ -136,6 +136,11 @@ def _place(r: MeshFile, read: tuple | MeshError) -> Mesh | MeshError:
     a = r.args
     if a.flip and a.bsdf.texture is not None and uvs is None:
         return MeshError("flip_normals with a texture on a mesh without texture coordinates is unsupported")
+    if a.bsdf.texture is not None and uvs is not None and np.isnan(uvs[np.unique(faces)]).any():
+        return MeshError("a texture on a mesh whose faces name texture coordinates for some corners only (Mitsuba "
+                         "leaves the others undefined)")
+    if uvs is not None and r.flip_tex_coords:
+        uvs = uvs * [1.0, -1.0] + [0.0, 1.0]
     vertices = transform.apply_point(a.to_world, vertices)
     if a.flip:     # reversed winding flips the face normals
         faces = faces[:, ::-1]
@@ -300,10 +305,11 @@ class MeshSet(ShapeSet):
                   + dr.gather(Array3f, self.corner_normals, tri * 3 + 2, is_tri) * b2)
         return dr.select(is_tri, dr.normalize(interp), n)
 
-    def uv(self, prim: UInt32, valid: Bool, b1: Float, b2: Float, u: Float, v: Float) -> tuple[Float, Float]:
-        """Texture coordinates interpolated from the corners where prim is a triangle ((u, v) elsewhere)."""
+    def uv(self, prim, valid, p, b1, b2, uv):
+        """Texture coordinates interpolated from the corners where prim is a triangle (`uv` elsewhere)."""
         if not self.count:
-            return u, v
+            return uv
+        u, v = uv
         tri, is_tri = self._triangle(prim, valid)
         b0 = 1.0 - b1 - b2
         c = [dr.gather(Float, self.corner_uvs, tri * 6 + k, is_tri) for k in range(6)]

@@ -8,7 +8,7 @@ import drjit as dr
 import numpy as np
 
 from .. import transform
-from ..jit import INF, Array3f, Float, UInt32, vec3
+from ..jit import INF, Array3f, Bool, Float, UInt32, vec3
 from ..sampling import square_to_uniform_disk_concentric
 from .base import ShapeArgs, ShapeSet, exclude
 from .planar import EDGE_MARGIN
@@ -63,8 +63,6 @@ class Rectangle:
 
 def from_xml(ctx, props, a: ShapeArgs) -> Rectangle:
     props.finish()
-    if a.kind == "disk" and a.bsdf.texture is not None:
-        raise ctx.error(a.node, "a texture on a disk is unsupported; supported on rectangle and serialized shapes")
     to_world = a.to_world
     if a.flip:   # the normal is the image of local +z: mirror z, which leaves the shape in place
         to_world = to_world @ np.diag([1.0, 1.0, -1.0, 1.0])
@@ -120,10 +118,21 @@ class RectangleSet(ShapeSet):
                 t = dr.select(dr.fma(x, x, y * y) > 1.0, INF, t)
             yield i, exclude(t, i, skip, target), x, y
 
-    @staticmethod
-    def uv(b1: Float, b2: Float) -> tuple[Float, Float]:
-        """Texture coordinates from local coordinates (x, y) in [-1, 1]^2: mapped to [0, 1]^2."""
-        return dr.fma(b1, 0.5, 0.5), dr.fma(b2, 0.5, 0.5)
+    def uv(self, prim, valid, p, b1, b2, uv):
+        """Mitsuba's: a rectangle's local (x, y) in [-1, 1]^2 mapped to [0, 1]^2; a disk's polar (r, phi / 2 pi)."""
+        if not self.shapes:
+            return uv
+        mine = (prim >= self.base) & (prim < self.base + self.count)
+        u, v = dr.fma(b1, 0.5, 0.5), dr.fma(b2, 0.5, 0.5)
+        disks = [self.base + k for k, r in enumerate(self.shapes) if r.disk]
+        if disks:
+            is_disk = Bool(False)
+            for i in disks:
+                is_disk |= prim == i
+            turn = dr.atan2(b2, b1) * (0.5 / dr.pi)
+            u = dr.select(is_disk, dr.sqrt(dr.fma(b1, b1, b2 * b2)), u)
+            v = dr.select(is_disk, dr.select(turn < 0, turn + 1.0, turn), v)
+        return dr.select(mine, u, uv[0]), dr.select(mine, v, uv[1])
 
     def sample(self, r: Rectangle, lo: int, u1: Float, u2: Float, geo) -> tuple[Array3f, Array3f, UInt32]:
         e1, e2 = r.edges

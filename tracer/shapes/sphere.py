@@ -2,7 +2,7 @@
 over their bounding boxes."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import drjit as dr
@@ -28,6 +28,7 @@ class Sphere:
     bsdf: BSDF
     name: str = ""
     radiance: tuple[float, float, float] | None = None   # an area light on it emits outward
+    frame: np.ndarray = field(default_factory=lambda: np.eye(3))   # to_world's rotation: the local axes (columns)
 
     @property
     def area(self) -> float:
@@ -43,8 +44,6 @@ def from_xml(ctx, props, a: ShapeArgs) -> Sphere:
     props.finish()
     if a.flip:
         raise ctx.error(props.values["flip_normals"], "flip_normals on a sphere is unsupported")
-    if a.bsdf.texture is not None:
-        raise ctx.error(a.node, "a texture on a sphere is unsupported; supported on rectangle and serialized shapes")
     linear = a.to_world[:3, :3]
     scale = float(np.cbrt(abs(np.linalg.det(linear))))
     if not np.allclose(linear.T @ linear, scale * scale * np.eye(3), rtol=0, atol=1e-6 * scale * scale):
@@ -53,7 +52,7 @@ def from_xml(ctx, props, a: ShapeArgs) -> Sphere:
     radius *= scale
     if radius <= 0:
         raise ctx.error(a.node, f"sphere radius must be positive, got {radius}")
-    return Sphere(center, radius, a.bsdf, a.name, a.radiance)
+    return Sphere(center, radius, a.bsdf, a.name, a.radiance, linear / scale)
 
 
 def ray_sphere(o: Array3f, d: Array3f, center, r2, t_min, t_max, leaving: Bool) -> Float:
@@ -111,6 +110,7 @@ class SphereSet(ShapeSet):
         if self.uses_bvh(self.count):
             self.bvh = SphereBVH(self.shapes, base)
             self.centers = Float(np.array([s.center for s in self.shapes], HOST_FLOAT).ravel())
+            self.axes = Float(np.array([s.frame.T for s in self.shapes], HOST_FLOAT).ravel())
 
     @staticmethod
     def uses_bvh(spheres: int) -> bool:
@@ -145,6 +145,28 @@ class SphereSet(ShapeSet):
             for k, s in enumerate(self.shapes[1:], 1):
                 center = dr.select(prim == self.base + k, vec3(s.center), center)
         return dr.select(is_sphere, dr.normalize(p - center), n)  # unit even where p is off the surface
+
+    def uv(self, prim, valid, p, b1, b2, uv):
+        """Mitsuba's: the spherical angles of p in the sphere's local frame, (phi / 2 pi, theta / pi), phi in
+        [0, 2 pi) from local +x towards +y, theta from local +z."""
+        if not self.shapes:
+            return uv
+        is_sphere = (prim >= self.base) & (prim < self.base + self.count)
+        if self.bvh is not None:
+            k = prim - self.base
+            center = dr.gather(Array3f, self.centers, k, is_sphere)
+            axes = [dr.gather(Array3f, self.axes, k * 3 + j, is_sphere) for j in range(3)]
+        else:
+            center, axes = vec3(self.shapes[0].center), [vec3(a) for a in self.shapes[0].frame.T]
+            for k, s in enumerate(self.shapes[1:], 1):
+                here = prim == self.base + k
+                center = dr.select(here, vec3(s.center), center)
+                axes = [dr.select(here, vec3(a), b) for a, b in zip(s.frame.T, axes)]
+        x, y, z = (dr.dot(p - center, a) for a in axes)
+        phi = dr.atan2(y, x)
+        phi = dr.select(phi < 0, phi + 2.0 * dr.pi, phi)
+        theta = dr.acos(dr.clip(z * dr.rsqrt(dr.fma(x, x, dr.fma(y, y, z * z))), -1.0, 1.0))
+        return dr.select(is_sphere, phi * (0.5 / dr.pi), uv[0]), dr.select(is_sphere, theta / dr.pi, uv[1])
 
     def sample(self, s: Sphere, lo: int, u1: Float, u2: Float, geo) -> tuple[Array3f, Array3f, UInt32]:
         n = square_to_uniform_sphere(u1, u2)
