@@ -109,6 +109,7 @@ SPECIAL = {   # (tag, kind, parameter) whose handling differs from the tag's oth
     ("shape", "sphere", "flip_normals"): REFUSED,
     ("shape", "obj", "flip_tex_coords"): HONOURED,      # its test file has texture coordinates, the PLY's none
     ("bsdf", "dielectric", "specular_reflectance"): REFUSED,
+    ("bsdf", "thindielectric", "specular_transmittance"): HONOURED,
 }
 
 

@@ -11,10 +11,10 @@ import drjit as dr
 
 from ..jit import Array2f, Array3f, Bool, Float, UInt32
 from ..sampling import coordinate_system
-from . import conductor, dielectric, diffuse, plastic
+from . import conductor, dielectric, diffuse, null, plastic, thindielectric
 from .bsdf import DELTA, SMOOTH, TRANSMISSION, BSDFSample
 
-KINDS = (diffuse, conductor, dielectric, plastic)          # a kind's code is its index
+KINDS = (diffuse, conductor, dielectric, plastic, null, thindielectric)     # a kind's code is its index
 KIND_CODE = {module.NAME: code for code, module in enumerate(KINDS)}
 
 
