@@ -287,13 +287,13 @@ def write_junit(results: list[CheckResult], path: Path) -> None:
     for r in results:
         case = ET.SubElement(suite, "testcase", classname=f"validate.check.{Path(r.scene).stem}",
                              name=f"{r.renderer} max_depth={r.max_depth}", time=f"{r.seconds:.3f}")
+        properties = ET.SubElement(case, "properties")     # first, as pytest writes them
+        for name, value in _properties(r).items():
+            ET.SubElement(properties, "property", name=name, value=value)
         if r.verdict == "disagree":
             ET.SubElement(case, "failure", message=r.comparison.summary()).text = r.line()
         elif r.verdict == "inconclusive":
             ET.SubElement(case, "skipped", message=r.note or r.comparison.summary())
-        properties = ET.SubElement(case, "properties")
-        for name, value in _properties(r).items():
-            ET.SubElement(properties, "property", name=name, value=value)
         ET.SubElement(case, "system-out").text = r.line()
     root = ET.Element("testsuites")
     root.append(suite)
