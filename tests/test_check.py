@@ -232,6 +232,9 @@ def test_coverage_counts_scenes_and_ranks_blockers(tmp_path):
     assert "| bsdf roughdielectric | 1 | 1 |" in text
     assert "missing.obj" in outcomes[-1].refusals[0] and "docs/scenes" in outcomes[-1].refusals[0]
     assert str(tmp_path) not in text + str([o.refusals + [o.mitsuba] for o in outcomes])
+    unchecked = markdown(outcomes, "validate coverage MITSUBA_DATA_DIR --no-check", checked=False)
+    assert "**not checked** in this run" in unchecked and "| ... and agrees" not in unchecked
+    assert "| docs/scenes/a.xml | loads | loads | not checked |" in unchecked
 
 
 def test_the_content_key_covers_files_an_included_fragment_names_through_the_includers_path(tmp_path):
