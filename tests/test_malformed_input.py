@@ -86,6 +86,16 @@ def test_ascii_ply_header_undercounting_its_faces(tmp_path):
     refused(mesh_scene(tmp_path, "ply", text.encode()), "1 more lines")
 
 
+def test_ply_trailing_content_as_mitsuba(tmp_path):
+    """Mitsuba refuses any byte after a binary PLY's data and any token after an ASCII one's, not blank lines."""
+    binary = mesh_scene(tmp_path, "ply", (MESHES / "cube.ply").read_bytes() + b"\n", name="b.ply")
+    refused(binary, "1 more bytes")
+    text = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n\n\n")
+    blank = mesh_scene(tmp_path, "ply", text.encode(), name="a.ply")
+    assert len(load_scene(blank).meshes) == 1 and not mitsuba_refuses(blank)
+
+
 def envmap_scene(tmp_path: Path, data: bytes) -> Path:
     (tmp_path / "sky.exr").write_bytes(data)
     return write_scene(tmp_path, '<emitter type="envmap"><string name="filename" value="sky.exr"/></emitter>')

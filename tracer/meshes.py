@@ -434,11 +434,14 @@ def _check_length(path: Path, ply) -> None:
     holds would otherwise drop the rest silently): ASCII files by their lines, binary ones by their bytes."""
     from plyfile import PlyListProperty
 
-    data = path.read_bytes()
-    end = data.find(b"end_header")
-    body = data[data.index(b"\n", end) + 1:]
+    with path.open("rb") as f:
+        head = f.read(1 << 16)
+        while b"end_header" not in head and (more := f.read(1 << 16)):
+            head += more
+    start = head.index(b"\n", head.index(b"end_header")) + 1          # plyfile found both
     declared = sum(len(e.data) for e in ply.elements)
     if ply.text:
+        body = path.read_bytes()[start:]
         extra = len([line for line in body.splitlines() if line.strip()]) - declared
         what = f"{extra} more lines"
     else:
@@ -452,7 +455,7 @@ def _check_length(path: Path, ply) -> None:
                     size += len(e.data) * length + corners * value
                 else:
                     size += len(e.data) * np.dtype(prop.dtype()).itemsize
-        extra = len(body) - size
+        extra = path.stat().st_size - start - size
         what = f"{extra} more bytes"
     if extra > 0:
         counts = ", ".join(f"{len(e.data)} {e.name}" for e in ply.elements)
