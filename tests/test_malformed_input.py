@@ -137,6 +137,16 @@ def test_corrupt_bitmap_texture(tmp_path):
     refused(path, "tex.png", "not a readable image")
 
 
+def test_png_texture_whose_image_data_fails_its_crc(tmp_path):
+    """Pillow decodes an IDAT chunk whose CRC fails; libpng, Mitsuba's reader, refuses it (found by the fuzzer)."""
+    data = bytearray((ROOT / "mitsuba_scenes" / "textures" / "tiles.png").read_bytes())
+    data[data.index(b"IDAT") + 20] ^= 4
+    (tmp_path / "tex.png").write_bytes(bytes(data))
+    path = write_scene(tmp_path, '<shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap" '
+                                 'name="reflectance"><string name="filename" value="tex.png"/></texture></bsdf></shape>')
+    refused(path, "tex.png", "'IDAT' fails its CRC")
+
+
 def test_too_long_file_name_names_the_element(tmp_path):
     path = mesh_scene(tmp_path, "obj", TRI.encode())
     path.write_text(path.read_text().replace("mesh.obj", "m" * 5000 + ".obj"))

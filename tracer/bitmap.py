@@ -34,6 +34,7 @@ def read_bitmap(path: Path, raw: bool) -> np.ndarray:
     from PIL import Image
 
     try:
+        _check_png_chunks(path)
         with Image.open(path) as im:
             if im.mode not in ("RGB", "RGBA", "L", "LA", "P"):
                 raise BitmapError(f"{path}: pixel format {im.mode} unsupported; supported: 8-bit RGB, RGBA, grey")
@@ -43,3 +44,30 @@ def read_bitmap(path: Path, raw: bool) -> np.ndarray:
     except Exception as e:   # whatever Pillow raises on a truncated or corrupted file (OSError, SyntaxError, ...)
         raise BitmapError(f"{path}: not a readable image ({type(e).__name__}: {e})") from None
     return (pixels if raw else srgb_to_linear(pixels)).astype(np.float32)
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _check_png_chunks(path: Path) -> None:
+    """Refuses a PNG whose critical chunks (IHDR, PLTE, IDAT, IEND) fail their CRC-32 (PNG spec, section 5.3),
+    as libpng (Mitsuba's reader) does by default; Pillow does not check the image data's (IDAT) CRCs."""
+    import zlib
+
+    data = path.read_bytes()
+    if not data.startswith(PNG_SIGNATURE):
+        return
+    at = len(PNG_SIGNATURE)
+    while at + 12 <= len(data):
+        length = int.from_bytes(data[at:at + 4], "big")
+        kind, body = data[at + 4:at + 8], data[at + 8:at + 8 + length]
+        crc = data[at + 8 + length:at + 12 + length]
+        if len(crc) < 4:
+            return                      # truncated: Pillow reports it
+        critical = kind[:1].isupper()     # an ancillary chunk's bad CRC: libpng warns and skips the chunk
+        if critical and zlib.crc32(kind + body).to_bytes(4, "big") != crc:
+            raise BitmapError(f"{path}: not a readable image (PNG chunk {kind.decode('latin-1')!r} fails its CRC: "
+                              "corrupted)")
+        if kind == b"IEND":
+            return
+        at += 12 + length
