@@ -101,10 +101,10 @@ def envmap_scene(tmp_path: Path, data: bytes) -> Path:
     return write_scene(tmp_path, '<emitter type="envmap"><string name="filename" value="sky.exr"/></emitter>')
 
 
-def small_exr(tmp_path: Path) -> bytes:
+def small_exr(tmp_path: Path, value: float = 0.5) -> bytes:
     from tracer.imageio import write_exr
 
-    write_exr(tmp_path / "good.exr", np.full((8, 16, 3), 0.5, np.float32))
+    write_exr(tmp_path / "good.exr", np.full((8, 16, 3), value, np.float32))
     return (tmp_path / "good.exr").read_bytes()
 
 
@@ -125,6 +125,41 @@ def test_bit_flipped_environment_maps_never_raise_anything_else(tmp_path):
             load_scene(envmap_scene(tmp_path, bytes(d)))
         except SceneError as e:
             assert "sky.exr" in str(e)
+
+
+def test_environment_map_with_a_predefined_attribute_of_another_type(tmp_path):
+    """OpenEXR's Python binding reads it; its C++ library, Mitsuba's reader, refuses it (found by the fuzzer)."""
+    data = small_exr(tmp_path)
+    at = data.index(b"compression\0compression\0") + len(b"compression\0")
+    corrupt = data[:at] + b"comprXssion" + data[at + len(b"compression"):]
+    refused(envmap_scene(tmp_path, corrupt), "sky.exr", "attribute 'compression' has type 'comprXssion'")
+
+
+def test_environment_scale_that_overflows_float32(tmp_path):
+    path = envmap_scene(tmp_path, small_exr(tmp_path, 4.0))
+    path.write_text(path.read_text().replace('</emitter>', '<float name="scale" value="3.4e38"/></emitter>'))
+    (error,) = scene_errors(path)
+    assert "overflows float32" in error and '<emitter type="envmap">' in error
+
+
+def test_a_render_with_infinite_pixels_names_the_scene(tmp_path, capsys, monkeypatch):
+    """A render that overflows float32 (an input near its limit) is refused in one line naming the scene,
+    nothing written (found by the fuzzer: the message named a temporary file)."""
+    import tracer.rendering
+
+    render = tracer.rendering.render
+
+    def overflowing(*args, **kwargs):
+        result = render(*args, **kwargs)
+        result.image[0, 0, 0] = np.inf
+        return result
+    monkeypatch.setattr(tracer.rendering, "render", overflowing)
+    path = ROOT / "mitsuba_scenes" / "cornell_box.xml"
+    (tmp_path / "out.exr").write_bytes(b"earlier")
+    code = main(["render", str(path), "-o", str(tmp_path / "out.exr"), "--size", "8x8", "--spp", "1", "-q"])
+    err = capsys.readouterr().err
+    assert code == 1 and err.count("\n") == 1 and f"the render of {path}" in err, err
+    assert (tmp_path / "out.exr").read_bytes() == b"earlier"
 
 
 def test_corrupt_bitmap_texture(tmp_path):
@@ -238,6 +273,22 @@ def test_included_scene_without_version(tmp_path):
 def test_value_mixed_with_xyz(tmp_path, element):
     path = write_scene(tmp_path, f'<shape type="sphere"><transform name="to_world">{element}</transform></shape>')
     refused(path, "cannot mix 'value' and 'x'/'y'/'z'")
+
+
+def test_rotation_angles_beyond_mitsubas_float32_sine(tmp_path):
+    mesh = '<shape type="ply"><string name="filename" value="{}"/><transform name="to_world">' \
+           '<rotate y="1" angle="{}"/></transform></shape>'
+    refused(write_scene(tmp_path, mesh.format(MESHES / "cube.ply", "1.8e19")), "beyond +-1e+10 degrees")
+    path = write_scene(tmp_path, mesh.format(MESHES / "cube.ply", "1e10"))
+    assert len(load_scene(path).meshes) == 1 and not mitsuba_refuses(path)
+
+
+def test_an_object_inside_a_transform_operation_is_no_object(tmp_path):
+    """Mitsuba ignores elements inside <translate>: a <bsdf id> there cannot be referenced (found by the fuzzer)."""
+    path = write_scene(tmp_path, '<shape type="sphere"><transform name="to_world"><translate x="1">'
+                                 '<bsdf type="diffuse" id="red"/></translate></transform></shape>'
+                                 '<shape type="sphere"><ref id="red"/></shape>')
+    refused(path, "no object with id 'red'")
 
 
 def test_unexpected_attribute(tmp_path):

@@ -276,6 +276,9 @@ def _render(args) -> int:
         result = render(scene, name, spp=spp, seed=seed, max_depth=max_depth, direct=args.direct,
                         indirect=args.indirect, hemisphere=args.hemisphere, rfilter=rfilter,
                         progress=not args.quiet, time_limit=args.time_limit)
+    from .imageio import check_image
+
+    check_image(result.image, f"the render of {args.scene} (values near the float32 limit overflow; nothing written)")
     written, notes = _write_outputs(scene, args, paths, result, rfilter)
     depth = "unbounded" if result.max_depth < 0 else f"{result.max_depth}"
     extra = ""

@@ -16,7 +16,7 @@ import numpy as np
 import OpenEXR
 
 
-from .errors import OutputError, UserError
+from .errors import OutputError, UserError, clip
 
 PNG_ROWS = 256  # rows encoded at once: the sRGB encoding holds a band's floats, not the image's
 
@@ -127,9 +127,35 @@ def read_exr(path: str | Path) -> np.ndarray:
     return _rgb_pixels(path).astype(np.float32)
 
 
+# The attributes every OpenEXR header predefines, with their types: OpenEXR's C++ library (Mitsuba's reader)
+# refuses a file that gives one of them another type; its Python binding reads the pixels regardless.
+PREDEFINED = {b"channels": b"chlist", b"compression": b"compression", b"dataWindow": b"box2i",
+              b"displayWindow": b"box2i", b"lineOrder": b"lineOrder", b"pixelAspectRatio": b"float",
+              b"screenWindowCenter": b"v2f", b"screenWindowWidth": b"float"}
+
+
+def _check_attribute_types(path: Path) -> None:
+    """The first header's predefined attributes have their types (OpenEXR file layout: magic, version, then
+    name, type, size and value of each attribute until an empty name)."""
+    with open(path, "rb") as f:
+        data = f.read(1 << 16)
+    at = 8
+    while at < len(data) and data[at] != 0:
+        name_end = data.find(b"\0", at)
+        type_end = data.find(b"\0", name_end + 1)
+        if name_end < 0 or type_end < 0 or type_end + 4 > len(data):
+            return                                # a long or truncated header: OpenEXR reports it
+        name, kind = data[at:name_end], data[name_end + 1:type_end]
+        if name in PREDEFINED and kind != PREDEFINED[name]:
+            raise ImageError(f"{path}: not a readable OpenEXR image (attribute '{name.decode('latin-1')}' has type "
+                             f"'{clip(kind.decode('latin-1'))}', not '{PREDEFINED[name].decode()}')")
+        at = type_end + 5 + int.from_bytes(data[type_end + 1:type_end + 5], "little", signed=True)
+
+
 def read_exr_rgb(path: Path) -> np.ndarray:
     """An input image (an environment map, a texture) as (H, W, 3) float32: readable, finite, non-negative."""
     try:
+        _check_attribute_types(path)
         image = _rgb_pixels(path).astype(np.float32)
     except ImageError:
         raise

@@ -48,6 +48,7 @@ PROPERTY_TAGS = ("integer", "float", "boolean", "string", "rgb", "spectrum", "po
 COLOUR_TAGS = ("float", "integer", "rgb", "spectrum")
 TRANSFORM_OPS = ("translate", "scale", "rotate", "matrix", "lookat")
 MAX_INCLUDE_DEPTH = 32
+MAX_ANGLE = 1e10            # degrees: Mitsuba 3.9.1 rotates meshes by 1e10, gives NaN positions from 3e11 on
 MAX_INCLUDES = 10_000       # includes in one scene (each file may include several: the count can grow exponentially)
 # The attributes Mitsuba's parser accepts on each element (it refuses any other as unexpected).
 ATTRIBUTES: dict[str, tuple[str, ...]] = {
@@ -382,7 +383,8 @@ def _collect_ids(ctx: _Context, node: Node) -> None:
                                                        f"{first.file}:{first.line})")))
             else:
                 ctx.ids[name] = child
-        _collect_ids(ctx, child)
+        if child.tag in PLUGIN_TAGS:      # an object inside a transform operation is no object (Mitsuba ignores it)
+            _collect_ids(ctx, child)
 
 
 # ---- properties -------------------------------------------------------------------------------------
@@ -569,7 +571,11 @@ def _transform_op(ctx: _Context, op: Node) -> np.ndarray:
         axis = _xyz(ctx, op, "0")
         if not np.any(axis):
             raise ctx.error(op, "rotation axis is zero")
-        return transform.rotate(axis, _number(ctx, op, ctx.attr(op, "angle")))
+        angle = _number(ctx, op, ctx.attr(op, "angle"))
+        if abs(angle) > MAX_ANGLE:
+            raise ctx.error(op, f"angle {angle:g} is beyond +-{MAX_ANGLE:g} degrees, where Mitsuba's float32 sine "
+                                "fails (a mesh's positions become NaN)")
+        return transform.rotate(axis, angle)
     if op.tag == "matrix":
         v = _numbers(ctx, op, ctx.attr(op, "value"))
         if len(v) == 16:

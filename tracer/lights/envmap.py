@@ -60,7 +60,11 @@ def from_xml(ctx, props, node) -> EnvironmentMap:
         image = read_exr_rgb(file)
     except ImageError as e:
         raise ctx.error(node, str(e)) from None
-    return EnvironmentMap(image * np.float32(scale), to_world, node.attrib.get("id", f"envmap@{node.line}"))
+    with np.errstate(over="ignore"):
+        radiance = image * np.float32(scale)
+    if not np.all(np.isfinite(radiance)):
+        raise ctx.error(node, f"scale {scale:g} times the image's largest value {image.max():g} overflows float32")
+    return EnvironmentMap(radiance, to_world, node.attrib.get("id", f"envmap@{node.line}"))
 
 
 @dataclass(frozen=True)
