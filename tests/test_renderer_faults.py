@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -47,6 +48,15 @@ FAKE = textwrap.dedent('''
 ''')
 
 
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    """One working folder for the cases: Mitsuba's reference (rendered before the renderer under test runs)
+    is cached there once."""
+    folder = tmp_path_factory.mktemp("check")
+    (folder / "renderer.py").write_text(FAKE)
+    return folder
+
+
 @pytest.mark.parametrize("fault, message", [
     ("hang", "did not finish pass 0 within --timeout 3 s"),
     ("crash", "killed by signal SIGSEGV on pass 0"),
@@ -57,17 +67,20 @@ FAKE = textwrap.dedent('''
     ("truncated", "unreadable OpenEXR image on pass 0"),
     ("png", "wrote a PNG on pass 0"),
 ])
-def test_a_faulty_renderer_is_refused_in_one_line(tmp_path, monkeypatch, capsys, fault, message):
-    monkeypatch.chdir(tmp_path)              # the reference cache is .cache/references under the working folder
-    script = tmp_path / "renderer.py"
-    script.write_text(FAKE)
-    command = f"{sys.executable} {script} {fault} {{scene}} -o {{output}} {{defines}}"
+def test_a_faulty_renderer_is_refused_in_one_line(workdir, monkeypatch, capsys, fault, message):
+    monkeypatch.chdir(workdir)               # the reference cache is .cache/references under the working folder
+    command = f"{sys.executable} {workdir / 'renderer.py'} {fault} {{scene}} -o {{output}} {{defines}}"
     code = cli.main(["check", str(SCENES / "cornell_box.xml"), "--renderer", command, "--passes", "3",
                      "--timeout", "3"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and err.startswith("validate: error: ") and "\n" not in err, err
     assert message in err, err
-    assert not (tmp_path / ".cache").exists()       # nothing rendered or cached for the reference
+    # nothing the renderer wrote is left or cached: the cache holds Mitsuba's references, each passing its checksum
+    files = sorted(p.relative_to(workdir) for p in workdir.rglob("*") if p.is_file())
+    cached = [workdir / p for p in files if p.parts[:2] == (".cache", "references")]
+    assert [p for p in files if workdir / p not in cached] == [Path("renderer.py")], files
+    for path in cached:
+        assert references.load(path, path.stem.rsplit("-", 1)[-1]) is not None, path
 
 
 def test_the_fake_renderer_itself_is_accepted(tmp_path, monkeypatch):
