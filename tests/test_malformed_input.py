@@ -252,13 +252,15 @@ def test_include_inside_a_default(tmp_path):
 
 @pytest.mark.parametrize("attribute, fragment", [("", "missing attribute 'version'"),
                                                  (' version="abc"', "invalid version 'abc'"),
-                                                 (' version="3.0"', "invalid version '3.0'")])
+                                                 (' version="3.0"', "invalid version '3.0'"),
+                                                 (' version="0.5, 0.5"', "invalid version '0.5, 0.5'"),
+                                                 (' version="3.0.99999999999999999999"', "invalid version")])
 def test_scene_version(tmp_path, attribute, fragment):
     path = write_scene(tmp_path, "", header=HEADER.replace('<scene version="3.0.0">', f"<scene{attribute}>"))
     refused(path, fragment)
 
 
-@pytest.mark.parametrize("version", ["2.0.0", "3.6.0", "99.0.0", "3.0.0-rc"])
+@pytest.mark.parametrize("version", ["2.0.0", "3.6.0", "99.0.0", "3.0.0-rc", " 3.0.0 ", "3 0 0", "-1.0.0"])
 def test_versions_mitsuba_accepts(tmp_path, version):
     path = write_scene(tmp_path, "", header=HEADER.replace('"3.0.0"', f'"{version}"'))
     assert load_scene(path).camera.width == 8 and not mitsuba_refuses(path)

@@ -65,7 +65,7 @@ ATTRIBUTES: dict[str, tuple[str, ...]] = {
 UNSIGNED = ("sample_count", "seed", "width", "height", "crop_offset_x", "crop_offset_y", "crop_width",
             "crop_height", "shape_index")
 INT32, UINT32, INT64 = (-2 ** 31, 2 ** 31 - 1), (0, 2 ** 32 - 1), (-2 ** 63, 2 ** 63 - 1)
-VERSION = re.compile(r"\s*[+-]?\d[^.]*")     # each of a version's three parts, as Mitsuba reads them
+VERSION = re.compile(r"\s*[+-]?(\d{1,25})")   # the start of each of a version's three parts, as stoul reads it
 
 # The parameters each supported plugin reads in Mitsuba 3 (its plugin source and documentation), so that a
 # parameter the tracer does not implement is refused as such rather than as a misspelling.
@@ -307,7 +307,8 @@ def _version_problem(scene: Node) -> str:
     version = scene.attrib.get("version")
     if version is None:
         return "missing attribute 'version' (as Mitsuba: e.g. version=\"3.0.0\")"
-    if len(parts := version.split(".")) != 3 or not all(VERSION.match(p) for p in parts):
+    parts = [p for p in re.split("[ .]", version) if p]        # Mitsuba's util::Version: tokens, then stoul each
+    if len(parts) != 3 or not all((m := VERSION.match(p)) and int(m[1]) < 2 ** 64 for p in parts):
         return f"invalid version '{version}' (as Mitsuba: major.minor.patch, e.g. 3.0.0)"
     return ""
 

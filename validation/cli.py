@@ -97,7 +97,7 @@ def _parser() -> argparse.ArgumentParser:
     z.add_argument("--timeout", type=float, default=120.0, help="seconds a mutant may take before it is a hang")
     z.add_argument("--no-mitsuba", action="store_true", help="skip the cross-check of rendered mutants against "
                    "Mitsuba's loader")
-    z.add_argument("--save", action="store_true", help="keep each failing mutant under tests/data/fuzz")
+    z.add_argument("--save", action="store_true", help="keep each finding (a failure, or a rendered mutant Mitsuba refuses) under tests/data/fuzz")
     z.add_argument("--output", "-o", type=Path, default=Path("reports/fuzz.md"))
     m = sub.add_parser("improvements", help="write reports/<scene>/improvements.md: filters, adaptive sampling, "
                        "denoising, each judged by its error against render time")

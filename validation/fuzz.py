@@ -594,8 +594,9 @@ def command_line(args, command: str) -> int:
     mutants, outcomes, seconds = fuzz(args.n, args.seed, args.workers, args.timeout, not args.no_mitsuba, progress,
                                       args.run)
     if args.save:
+        found = {o.index for o in unexplained(outcomes)}
         for m, o in zip(mutants, outcomes):
-            if o.kind in FAILURES:
+            if o.index in found:
                 save_regression(m, o)
     text = report(outcomes, args.n, args.seed, seconds, args.workers, command)
     args.output.parent.mkdir(parents=True, exist_ok=True)
