@@ -68,6 +68,7 @@ VALUES = {
     "irradiance": '<rgb name="irradiance" value="2, 3, 4"/>', "data": '<ref name="data" id="nothing"/>',
     "raw": '<boolean name="raw" value="true"/>', "filter_type": '<string name="filter_type" value="nearest"/>',
     "wrap_mode": '<string name="wrap_mode" value="clamp"/>', "format": '<string name="format" value="fp16"/>',
+    "opacity": '<float name="opacity" value="0.3"/>',
     "accel": '<boolean name="accel" value="false"/>', "texture": '<texture type="checkerboard" name="texture"/>', "intensity": '<rgb name="intensity" value="2, 3, 4"/>',
 }
 HONOURED = "honoured"
@@ -90,7 +91,7 @@ EXPECTED = {
               "flip_tex_coords": NO_EFFECT, "shape_index": HONOURED, "p0": HONOURED, "p1": HONOURED},
     "bsdf": {"reflectance": HONOURED, "allow_transmission": REFUSED, "material": HONOURED, "eta": HONOURED,
              "k": HONOURED, "specular_reflectance": HONOURED, "specular_transmittance": REFUSED, "int_ior": HONOURED,
-             "ext_ior": HONOURED, "nonlinear": HONOURED, "diffuse_reflectance": HONOURED},
+             "ext_ior": HONOURED, "nonlinear": HONOURED, "diffuse_reflectance": HONOURED, "opacity": HONOURED},
     "texture": {"color0": HONOURED, "color1": HONOURED, "to_uv": HONOURED, "filename": HONOURED, "bitmap": REFUSED,
                 "data": REFUSED, "raw": HONOURED, "filter_type": HONOURED, "wrap_mode": HONOURED, "format": REFUSED,
                 "accel": NO_EFFECT},
@@ -138,7 +139,7 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
             p += f'<string name="filename" value="{name}"/>'
         body = f'<shape type="{kind}">{p}</shape>'
     elif tag == "bsdf":
-        inner = '<bsdf type="diffuse"/>' if kind == "twosided" else ""
+        inner = '<bsdf type="diffuse"/>' if kind in ("twosided", "mask") else ""
         body = f'<shape type="rectangle"><bsdf type="{kind}">{inner}{p}</bsdf></shape>'
     elif tag == "texture":
         if kind == "bitmap":

@@ -118,6 +118,10 @@ class Scene:
                        "use --estimator path")
         if estimator == "report" and any(b.kind == "plastic" for b in self.bsdfs):
             out.append(f"{self.path}: the report estimator does not render the 'plastic' bsdf; use --estimator path")
+        split = [b.kind for b in self.bsdfs if b.opacity < 1 and b.kind in ("dielectric", "thindielectric")]
+        if estimator == "report" and split:
+            out.append(f"{self.path}: the report estimator does not render a 'mask' around '{split[0]}'; "
+                       "use --estimator path")
         if estimator == "report" and any(b.texture is not None for b in self.bsdfs):
             out.append(f"{self.path}: the report estimator does not render textures (checkerboard, bitmap); "
                        "use --estimator path")

@@ -49,12 +49,13 @@ class Wavefront:
 class Vertices:
     """Where one level's rays ended, classified: the surface found, its material kind, whether its BSDF is
     not black from the incoming ray's side (`lit`), and whether it is lit with a non-delta lobe (`smooth`:
-    the report's diffuse vertex)."""
+    the report's diffuse vertex), and whether it has a delta lobe."""
 
     surf: Surface
     kind: UInt32
     lit: Bool
     smooth: Bool
+    delta: Bool          # lit, with a delta lobe (rays it samples see emitters)
 
 
 def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int, settings: BranchingEstimator,
@@ -71,8 +72,9 @@ def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int
         dr.eval(radiance)
         return None, len(wave)
     bsdf = SurfaceBSDF(geo.materials, surf, wi, surf.valid)
-    at = Vertices(surf, bsdf.kind, surf.valid & bsdf.lit, surf.valid & bsdf.lit & bsdf.smooth)
-    dr.eval(radiance, surf.p, surf.n, surf.ns, surf.prim, surf.material, at.kind, at.lit, at.smooth)
+    lit = surf.valid & bsdf.lit
+    at = Vertices(surf, bsdf.kind, lit, lit & bsdf.smooth, lit & bsdf.delta)
+    dr.eval(radiance, surf.p, surf.n, surf.ns, surf.prim, surf.material, at.kind, at.lit, at.smooth, at.delta)
     if surf.uv is not None:
         dr.eval(surf.uv)
     rays = len(wave)
@@ -134,15 +136,14 @@ def indirect_sample(bsdf: SurfaceBSDF, u1: Float, u2: Array2f, hemisphere: str) 
 def _child_counts(geo, at: Vertices, vertex: int, max_depth: int, settings: BranchingEstimator) -> UInt32:
     """Children each vertex spawns: M where its BSDF has a non-delta lobe (while they can still reach a
     light within max_depth, or see one through a delta lobe), the listed lobes of a kind that splits (two
-    at glass), one elsewhere (a mirror's front), none where the ray left the scene or the BSDF is black."""
+    at glass), one elsewhere (a mirror's front), none where the ray left the scene or the BSDF is black.
+    A split kind under a `mask` is refused by Scene.estimator_refusals."""
     count = UInt32(0)
     for code in sorted(geo.materials.kinds):
-        flags = KINDS[code].FLAGS
-        n = split_count(code) or 1
-        if flags & SMOOTH:
-            n = settings.indirect if vertex + 2 <= max_depth or flags & DELTA else 0
-        if n:
-            count = dr.select((at.kind == code) & at.lit, n, count)
+        n = UInt32(split_count(code) or 1)
+        if KINDS[code].FLAGS & SMOOTH:
+            n = UInt32(settings.indirect) if vertex + 2 <= max_depth else dr.select(at.delta, settings.indirect, 0)
+        count = dr.select((at.kind == code) & at.lit, n, count)
     return dr.select(at.surf.prim != NO_PRIM, count, 0)
 
 

@@ -129,6 +129,7 @@ class BSDF:
     specular_reflectance: tuple[float, float, float] = (1.0, 1.0, 1.0)   # plastic's specular layer
     nonlinear: bool = False                                              # plastic's internal scattering model
     back: BSDF | None = None        # a two-sided material's back, where it differs from the front (this BSDF)
+    opacity: float = 1.0            # a `mask`: the probability of scattering by this BSDF (else the ray passes)
 
     @property
     def perfect_mirror(self) -> bool:

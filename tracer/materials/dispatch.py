@@ -12,7 +12,7 @@ import drjit as dr
 from ..jit import Array2f, Array3f, Bool, Float, UInt32
 from ..sampling import coordinate_system
 from . import conductor, dielectric, diffuse, null, plastic, thindielectric
-from .bsdf import DELTA, SMOOTH, TRANSMISSION, BSDFSample
+from .bsdf import DELTA, NULL, SMOOTH, TRANSMISSION, BSDFSample
 
 KINDS = (diffuse, conductor, dielectric, plastic, null, thindielectric)     # a kind's code is its index
 KIND_CODE = {module.NAME: code for code, module in enumerate(KINDS)}
@@ -23,13 +23,17 @@ class SurfaceBSDF:
 
     Directions in and out are in world space; the kinds see them in the local shading frame (z the shading
     normal), mirrored through the surface on the back of a two-sided material.
+    A `mask`ed material (opacity < 1) is its BSDF with probability opacity and a null lobe (the ray passes
+    unchanged) otherwise: eval and pdf are scaled by the opacity, as in Mitsuba's `mask`.
     `smooth`: lanes whose BSDF has a non-delta lobe (next-event estimation applies);
+    `delta`: lanes whose BSDF has a delta lobe (a mask's null lobe included);
     `lit`: lanes where the BSDF is not black from wi's side (one-sided kinds without transmission)."""
 
     def __init__(self, tables, surf, wi: Array3f, active: Bool):
         self.n = surf.ns
         self.s, self.t = coordinate_system(self.n)
         wi = self._local(wi)
+        self.opacity = tables.opacity(surf.material, active) if tables.any_mask else None   # the mask's own
         self.flip = None                   # lanes on the back of a two-sided material (None: no such material)
         if tables.any_twosided:
             self.flip = tables.twosided(surf.material, active) & (wi.z < 0)
@@ -42,11 +46,16 @@ class SurfaceBSDF:
         self.params = {code: module.params(tables, surf, active & (self.kind == code))
                        for code, module in self.kinds}
         self.smooth = self.kinds_where(lambda m: m.FLAGS & SMOOTH)
+        self.delta = self.kinds_where(lambda m: m.FLAGS & DELTA)
         self.lit = (wi.z > 0) | self.kinds_where(lambda m: m.FLAGS & TRANSMISSION)
+        if self.opacity is not None:
+            masked = self.opacity < 1.0
+            self.delta, self.lit = self.delta | masked, self.lit | masked
 
     def state(self) -> list:
         """The arrays it holds, for SceneGeometry.keep."""
-        return [self.s, self.t, self.n, self.wi, self.kind, self.flip, self.smooth, self.lit, list(self.params.values())]
+        return [self.s, self.t, self.n, self.wi, self.kind, self.flip, self.opacity, self.smooth, self.delta, self.lit,
+                list(self.params.values())]
 
     def kinds_where(self, has) -> Bool:
         """Lanes whose kind's FLAGS satisfy `has` (static per kind)."""
@@ -91,6 +100,8 @@ class SurfaceBSDF:
         for (mask, f), (_, p) in zip(self._each("eval", self.wi, wo, active, smooth_only=True),
                                      self._each("pdf", self.wi, wo, active, smooth_only=True)):
             value, density = dr.select(mask, f, value), dr.select(mask, p, density)
+        if self.opacity is not None:
+            value, density = value * self.opacity, density * self.opacity
         return value, density
 
     def eval(self, wo: Array3f, active: Bool) -> Array3f:
@@ -98,6 +109,17 @@ class SurfaceBSDF:
 
     def sample(self, u1: Float, u2: Array2f, active: Bool) -> tuple[BSDFSample, Array3f]:
         """A sampled direction (BSDFSample, wo in world space) and its weight f |cos| / pdf."""
+        if self.opacity is None:
+            return self._sample(u1, u2, active)
+        nested = u1 < self.opacity               # a mask: its BSDF with probability opacity, else straight on
+        bs, weight = self._sample(dr.select(nested, u1 / self.opacity, u1), u2, active & nested)
+        through = BSDFSample(self.to_world(-self.wi), 1.0 - self.opacity, Float(1.0), UInt32(NULL))
+        bs = BSDFSample(*(dr.select(nested, a, b) for a, b in zip(
+            (bs.wo, bs.pdf * self.opacity, bs.eta, bs.sampled_type), (through.wo, through.pdf, through.eta,
+                                                                          through.sampled_type))))
+        return bs, dr.select(nested, weight, dr.select(active, Array3f(1.0), Array3f(0.0)))
+
+    def _sample(self, u1: Float, u2: Array2f, active: Bool) -> tuple[BSDFSample, Array3f]:
         out, weight = None, Array3f(0.0)
         for mask, (bs, w) in self._each("sample", self.wi, u1, u2, active):
             if out is None:

@@ -28,6 +28,8 @@ class MaterialTables:
         self._kind = UInt32([KIND_CODE[b.kind] for b in rows])
         self._twosided = UInt32([int(b.twosided) for b in rows])
         self.any_back = bool(backs)
+        self.any_mask = any(b.opacity < 1.0 for b in rows)
+        self._opacity = Float([b.opacity for b in rows])
         self._back = UInt32([bsdfs.index(b.back) if b.back is not None else i for i, b in enumerate(rows)])
         self.textures = TextureTables(rows) if self.textured else None
         self._tables: dict[str, tuple[Float, int]] = {}
@@ -60,6 +62,10 @@ class MaterialTables:
         if not self.any_back:
             return material
         return dr.gather(UInt32, self._back, material, active)
+
+    def opacity(self, material: UInt32, active: Bool) -> Float:
+        """A `mask`ed material's opacity (1 elsewhere)."""
+        return dr.gather(Float, self._opacity, material, active)
 
     def has_table(self, kind: str) -> bool:
         return kind in self._tables
