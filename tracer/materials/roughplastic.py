@@ -17,6 +17,7 @@ mixture."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import drjit as dr
 import numpy as np
@@ -45,8 +46,10 @@ class RoughPlasticParams:
     row: UInt32 | int = 0             # this lane's row of `transmittance`
 
 
+@lru_cache(maxsize=64)
 def coating(ggx: bool, alpha: float, eta: float) -> tuple[np.ndarray, float]:
-    """(T at cos theta = max(1e-6, k / 63), k = 0..63; R_int) of a coating, as Mitsuba precomputes them."""
+    """(T at cos theta = max(1e-6, k / 63), k = 0..63; R_int) of a coating, as Mitsuba precomputes them
+    (kept for later scenes: about a second each)."""
     mu = np.maximum(1e-6, np.linspace(0.0, 1.0, TRANSMITTANCE_RES, dtype=np.float32))
     transmittance = _visible_normal_integral(ggx, alpha, eta, mu, transmitted=True)
     reflectance = _visible_normal_integral(ggx, alpha, 1.0 / eta, mu, transmitted=False)
