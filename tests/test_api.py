@@ -128,9 +128,9 @@ def test_time_limit_stops_before_a_pass_that_would_end_after_it(monkeypatch):
     def one_second(index, spp):
         clock[0] += 1.0
 
-    assert rendering.run_passes([1] * 10, 3.5, one_second) == [1, 1, 1]
-    assert rendering.run_passes([1] * 10, 0.1, one_second) == [1]          # the first pass always runs
-    assert rendering.run_passes([2, 2, 1], None, one_second) == [2, 2, 1]
+    assert rendering.run_passes([1] * 10, 3.5, one_second) == ([1, 1, 1], None)
+    assert rendering.run_passes([1] * 10, 0.1, one_second) == ([1], None)          # the first pass always runs
+    assert rendering.run_passes([2, 2, 1], None, one_second) == ([2, 2, 1], None)
 
 
 def test_a_time_limit_not_reached_renders_every_sample(scene):

@@ -47,6 +47,31 @@ def test_a_huge_image_is_refused_with_a_size_that_fits():
         plan_render(15000, 15000, 1, "path", 4, memory=4 * GIB)
 
 
+def test_the_estimate_counts_the_process_and_the_scene_and_refuses_what_the_scene_leaves_no_room_for():
+    from tracer.plan import PROCESS_BYTES, film_bytes
+
+    plan = plan_render(100, 80, 4, "path", 4, memory=16 * GIB, scene_bytes=200 << 20)
+    assert plan.peak_bytes == PROCESS_BYTES + (200 << 20) + film_bytes(100, 80, 0, 4, 2) + plan.launch_bytes
+    assert "process 120 MiB, scene 200 MiB" in plan.describe()
+    assert plan.needed_bytes == plan.peak_bytes - PROCESS_BYTES        # the process is there when it is planned
+    with pytest.raises(PlanError, match=r"GiB available besides the scene's 3\.50 GiB; at most about \d+ x \d+ fits"):
+        plan_render(8000, 6000, 1, "path", 4, memory=4 * GIB, scene_bytes=GIB * 7 // 2)
+
+
+def test_a_scenes_triangles_and_texels_enter_the_estimate():
+    import tracer
+    from tracer.plan import TEXEL_BYTES, TRIANGLE_BYTES
+    from tracer.rendering import scene_bytes
+
+    from .conftest import SCENES
+
+    room = tracer.load_scene(SCENES / "environment_map.xml")
+    sky = room.envmap.image
+    assert scene_bytes(room) == room.triangle_count * TRIANGLE_BYTES + sky.shape[0] * sky.shape[1] * TEXEL_BYTES
+    textured = tracer.load_scene(SCENES / "bitmap.xml")
+    assert scene_bytes(textured) > textured.triangle_count * TRIANGLE_BYTES    # the bitmap's texels
+
+
 def test_developing_stays_within_its_multiple_of_the_image():
     """The film (16 bytes per pixel, a Dr.Jit array) and the NumPy memory its developing allocates, against
     DEVELOP_MULTIPLE developed images (12 bytes per pixel); the old develop held about 6 images more."""

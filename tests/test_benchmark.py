@@ -163,3 +163,18 @@ def test_a_renders_own_rays_are_replayed_through_both_renderers(tmp_path):
     with recorded_queries() as queries:   # nothing is kept outside a batched render
         geo.closest_hit(*(tracer.jit.Array3f(0.0, 0.0, 0.0),) * 2, 0.0, 1.0, tracer.jit.UInt32(0))
     assert queries == []
+
+
+def test_the_memory_section_sets_the_plans_estimate_against_the_measured_peak(tmp_path):
+    from tracer.plan import PROCESS_BYTES
+
+    scene = benchmark.ROOT / "mitsuba_scenes" / "cornell_box.xml"
+    row = benchmark.peak_memory(scene, ["-D", "width=24", "-D", "height=16", "-D", "spp=2"])
+    assert row["settings"] == "24 x 16, 2 spp" and row["seconds"] > 0
+    assert row["estimate_mib"] >= PROCESS_BYTES / 2**20                # the process is part of the estimate
+    assert 50 < row["peak_mib"] < 10 * row["estimate_mib"]              # a Python process with Dr.Jit loaded
+    lines = benchmark.memory_markdown({"rows": {"mitsuba_scenes/cornell_box.xml": row}, "docs": False})
+    ratio = row["peak_mib"] / row["estimate_mib"]
+    assert f"| mitsuba_scenes/cornell_box.xml | 24 x 16, 2 spp | {row['estimate_mib']:.0f} | " \
+           f"{row['peak_mib']:.0f} | {ratio:.2f} |" in lines
+    assert any("`--mitsuba-data` not given" in line for line in lines)

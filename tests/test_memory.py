@@ -1,17 +1,23 @@
-"""A render's memory does not grow from launch to launch: a scene with the ingredients of the one that
-grew without bound (an environment map, meshes in a BVH, so the path tracer goes bounce by bounce) rendered
-in many small launches, the process's heap measured between them."""
+"""A render's memory: it does not grow from launch to launch (a scene with the ingredients of the one that grew
+without bound, an environment map and meshes in a BVH so that the path tracer goes bounce by bounce, rendered
+in many small launches, the process's heap measured between them), and a render that runs out of memory all
+the same stops in one line and keeps the passes it completed."""
 import ctypes
 
 import numpy as np
 import pytest
 
 import tracer
+import tracer.film
 import tracer.launch
-from tracer.geometry import SceneGeometry
 import tracer.plan
-from tracer.imageio import write_exr
+from tracer import cli, memory_guard
+from tracer.errors import OutOfMemory
+from tracer.geometry import SceneGeometry
+from tracer.imageio import read_exr, read_exr_header, write_exr
 from validation.mesh_scene import sphere, torus, write_obj
+
+from .conftest import SCENES
 
 LAUNCH = 2048           # samples per launch: many launches in a second or two
 LAUNCHES = 40
@@ -96,3 +102,68 @@ def test_heap_is_flat_over_many_launches_bounce_by_bounce(scene_file, monkeypatc
     growth = max(heap[SETTLE:]) - heap[SETTLE]
     assert growth < GROWTH, f"the heap grew {growth / 2**20:.1f} MiB over {LAUNCHES - SETTLE} launches: " + \
         ", ".join(f"{h / 2**20:.1f}" for h in heap)
+
+
+# --- running out of memory ------------------------------------------------------------------------------------
+CORNELL = SCENES / "cornell_box.xml"
+PASSES = 6     # one launch each: --time-limit's passes of one sample per pixel
+
+
+def exhausted_in_pass(monkeypatch, failing: int) -> None:
+    """The machine has almost no memory left once pass `failing` (from 1) has launched (memory_guard.check runs
+    after every launch; here one per pass)."""
+    checks = iter(range(1, 10**6))
+    monkeypatch.setattr(memory_guard, "available_memory", lambda: 1 << 20 if next(checks) >= failing else 1 << 40)
+
+
+def dr_jit_fails_in_pass(monkeypatch, failing: int) -> None:
+    """Dr.Jit's allocation fails in pass `failing`: its error, raised by the launch's splat into the film."""
+    calls, put = iter(range(1, 10**6)), tracer.film.Film.put
+
+    def failing_put(self, *args, **kwargs):
+        if next(calls) >= failing:
+            raise RuntimeError("jit_malloc(): out of memory! Could not allocate 1073741824 bytes (backend=llvm, shared=0).")
+        return put(self, *args, **kwargs)
+
+    monkeypatch.setattr(tracer.film.Film, "put", failing_put)
+
+
+@pytest.mark.parametrize("fail", [exhausted_in_pass, dr_jit_fails_in_pass])
+def test_a_render_out_of_memory_keeps_the_passes_it_completed(monkeypatch, fail):
+    scene = tracer.load_scene(CORNELL, width=16, height=12)
+    three = tracer.render(scene, spp=3, time_limit=1e9)             # the first three passes, uninterrupted
+    fail(monkeypatch, 4)
+    with pytest.raises(OutOfMemory) as stopped:
+        tracer.render(scene, spp=PASSES, time_limit=1e9)
+    message = str(stopped.value)
+    assert message.startswith("out of memory in pass 4 of 6 (") and "\n" not in message
+    assert "the 3 passes done fit: 3 of 6 spp" in message and "the plan estimated a peak of" in message
+    partial = stopped.value.partial
+    assert partial.spp == 3 and partial.settings["passes"] == 3
+    np.testing.assert_array_equal(partial.image, three.image)      # the film as the three passes left it
+
+
+def test_a_render_out_of_memory_in_its_first_pass_has_nothing_to_keep(monkeypatch):
+    scene = tracer.load_scene(CORNELL, width=16, height=12)
+    exhausted_in_pass(monkeypatch, 1)
+    with pytest.raises(OutOfMemory, match=r"^out of memory in pass 1 of 1 \(.*no pass was complete") as stopped:
+        tracer.render(scene, spp=2)
+    assert stopped.value.partial is None
+
+
+def test_the_command_writes_the_passes_done_and_says_so_in_one_line(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "cbox.exr"
+    exhausted_in_pass(monkeypatch, 3)
+    args = ["render", str(CORNELL), "--size", "16x12", "--spp", str(PASSES), "--time-limit", "1e9", "-q"]
+    assert cli.main(args + ["-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("tracer: error: out of memory in pass 3 of 6 (") and err.count("\n") == 1, err
+    assert f"2 of 6 spp; wrote them to {out}, {out.with_suffix('.png')}" in err
+    assert read_exr_header(out)["spp"] == "2" and read_exr(out).mean() > 0
+
+    lost = tmp_path / "lost.exr"
+    exhausted_in_pass(monkeypatch, 1)
+    assert cli.main(args + ["-o", str(lost)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("tracer: error: out of memory in pass 1 of 6") and err.count("\n") == 1, err
+    assert err.rstrip().endswith("nothing written") and not lost.exists()

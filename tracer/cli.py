@@ -18,7 +18,7 @@ import time
 import traceback
 from pathlib import Path
 
-from .errors import BackendError, OutputError, SettingsError, UserError, clip, shorten
+from .errors import BackendError, OutOfMemory, OutputError, SettingsError, UserError, clip, shorten
 
 DEPTH_NOTE = ("max_depth counts path segments as Mitsuba does (1: lights seen directly, 2: direct light, "
               "-1: unbounded); the report's depth D is max_depth D + 2")
@@ -273,9 +273,12 @@ def _render(args) -> int:
         result = render_adaptive(scene, spp=spp, seed=seed, max_depth=max_depth, rfilter=rfilter,
                                  progress=not args.quiet)
     else:
-        result = render(scene, name, spp=spp, seed=seed, max_depth=max_depth, direct=args.direct,
-                        indirect=args.indirect, hemisphere=args.hemisphere, rfilter=rfilter,
-                        progress=not args.quiet, time_limit=args.time_limit)
+        try:
+            result = render(scene, name, spp=spp, seed=seed, max_depth=max_depth, direct=args.direct,
+                            indirect=args.indirect, hemisphere=args.hemisphere, rfilter=rfilter,
+                            progress=not args.quiet, time_limit=args.time_limit)
+        except OutOfMemory as e:
+            raise OutOfMemory(f"{e}; {_keep_partial(scene, e.partial, paths)}") from None
     from .imageio import check_image
 
     check_image(result.image, f"the render of {args.scene} (values near the float32 limit overflow; nothing written)")
@@ -303,6 +306,25 @@ def _render(args) -> int:
     return 0
 
 
+def _tags(result) -> dict:
+    """The header entries of a render's images."""
+    return {"spp": result.spp, "seed": result.seed, "estimator": result.estimator, "max_depth": result.max_depth}
+
+
+def _keep_partial(scene, partial, paths: list[Path]) -> str:
+    """The passes a render completed before it ran out of memory, written to the outputs with their spp in the
+    header (no AOVs, no denoising: they would take more memory); says what was written."""
+    from . import imageio
+
+    if partial is None:
+        return "nothing written"
+    with imageio.Outputs() as out:
+        for path in paths:
+            out.add(path, imageio.writer(path), partial.image, metadata=_tags(partial))
+        written = out.commit()
+    return f"wrote them to {', '.join(str(p) for p in written)}"
+
+
 def _write_outputs(scene, args, paths: list[Path], result, rfilter) -> tuple[list[Path], list[str]]:
     """Writes the images (with --aovs and --denoise, their extra files beside the first output), all or
     none; returns the files and lines on the extra work's time."""
@@ -310,7 +332,7 @@ def _write_outputs(scene, args, paths: list[Path], result, rfilter) -> tuple[lis
 
     image, notes = result.image, []
     base = paths[0].with_suffix("")
-    tags = {"spp": result.spp, "seed": result.seed, "estimator": result.estimator, "max_depth": result.max_depth}
+    tags = _tags(result)
     with imageio.Outputs() as out:
         if args.aovs or args.denoise:
             from .aov import render_aovs

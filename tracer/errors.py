@@ -55,3 +55,12 @@ def shorten(message: str, limit: int = 500) -> str:
             return text[0] + clip(text[1:-1]) + text[0]
         return clip(text, LONG_WORD)
     return _LONG.sub(repl, message)
+
+
+class OutOfMemory(UserError, MemoryError):
+    """A render that ran out of memory: stopped, with the passes it had completed in `partial` (a RenderResult,
+    None when no pass was complete)."""
+
+    def __init__(self, message: str, partial=None):
+        super().__init__(message)
+        self.partial = partial

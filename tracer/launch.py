@@ -5,7 +5,7 @@ from __future__ import annotations
 import drjit as dr
 from tqdm import tqdm
 
-from . import compile_clock
+from . import compile_clock, memory_guard
 from .film import Film
 from .jit import UInt32, opaque_u32
 from .plan import PATH_CHUNK
@@ -18,6 +18,7 @@ def chunks(total: int, size: int, progress: bool, label: str):
         n = min(size, total - start)
         yield start, n
         compile_clock.lap()    # the launch's kernels leave Dr.Jit's history
+        memory_guard.check()
         bar.update(n)
     bar.close()
 

@@ -6,14 +6,18 @@ dying late (an index overflow after hours, the kernel's out-of-memory killer, a 
 - **Passes.** Sample indices are 32-bit within a pass (the random streams and the pixel of a sample
   derive from them), so the samples per pixel are split into passes of at most 2^32 samples each; any
   spp works. A render that fits one pass is that one pass, exactly as it always was.
-- **Memory.** The estimate adds the film (four sums per pixel, with the filter's border), the developed
+- **Memory.** The estimate is of the process's peak resident memory. It adds the process itself (the
+  interpreter, NumPy, Dr.Jit, LLVM and the compiled kernels), the scene's arrays (per mesh triangle: its
+  vertices on the host and in the kernels' arrays and its BVH; per texel of a texture or environment map:
+  its copies and sampling tables), the film (four sums per pixel, with the filter's border), the developed
   image and its copies for the outputs, and the working set of one launch: the path tracer's lanes, or
   the branching estimator's widest level of its ray tree (its lanes and the children array it spawns).
   A path tracer in one kernel holds a few registers per lane; bounce by bounce (a scene with a BVH,
   integrators.path) it holds each path's state and its rays in memory. Per-lane figures were measured
   (peak RSS of 2^21 against 2^19 path lanes, on hexagon_room and on validate bench's 249,354-triangle
   scene; of the report estimator at 128 x 128, max_depth 4, M = 8) and rounded up; they are estimates,
-  not bounds.
+  not bounds. `validate bench --only memory` checks the whole against measured peaks (reports/performance.md).
+  A render is refused when what it has still to allocate (all but the process) exceeds the memory available.
 - **Developing.** Film.develop divides the sums band by band (film.DEVELOP_PIXELS), so that the film and
   its developing stay within DEVELOP_MULTIPLE of the image's own size, plus one band's few megabytes
   (tests/test_api_plan.py measures it).
@@ -36,10 +40,13 @@ MAX_LANES = 1 << 32         # lanes of one Dr.Jit array (32-bit indices)
 
 IMAGE_BYTES = 12            # per pixel of a developed image: float32 RGB
 DEVELOP_MULTIPLE = 3.0      # film (16 bytes per pixel) and its developing, in developed images (12 bytes)
-PATH_LANE_BYTES = 64        # per path-tracer lane of a launch in one kernel (measured about 10)
+PATH_LANE_BYTES = 16        # per path-tracer lane of a launch in one kernel (measured about 7)
 WAVEFRONT_LANE_BYTES = 512  # per path-tracer lane of a launch bounce by bounce (measured about 420)
 WAVE_LANE_BYTES = 192       # per ray of a report-estimator level: ray, weight, hit surface (measured about 150)
 SPAWN_LANE_BYTES = 16       # per possible child of a level (a spawned one takes its mark and parent rank)
+PROCESS_BYTES = 120 << 20   # the interpreter and libraries with the kernels compiled (measured 112 MiB)
+TRIANGLE_BYTES = 1024       # per mesh triangle (measured about 650 to 1,030 after building the BVH)
+TEXEL_BYTES = 48            # per texel of a texture or environment map
 
 
 def pass_spps(pixels: int, spp: int, max_samples: int = MAX_PASS_SAMPLES) -> list[int]:
@@ -67,16 +74,25 @@ class Plan:
     film_bytes: int            # film, developed image and output copies
     launch_bytes: int          # the working set of one launch
     available_bytes: int
+    scene_bytes: int = 0       # the scene's meshes, BVHs and textures
+    process_bytes: int = PROCESS_BYTES
 
     @property
     def peak_bytes(self) -> int:
-        return self.film_bytes + self.launch_bytes
+        """The process's peak resident memory."""
+        return self.process_bytes + self.scene_bytes + self.film_bytes + self.launch_bytes
+
+    @property
+    def needed_bytes(self) -> int:
+        """What the render has still to allocate when it is planned (the process is there already)."""
+        return self.peak_bytes - self.process_bytes
 
     def describe(self) -> str:
         passes = f"{len(self.passes)} passes" if len(self.passes) > 1 else "1 pass"
         return (f"{self.width * self.height * self.spp:,} samples in {passes}, launches of {self.chunk:,}; "
-                f"peak memory about {gib(self.peak_bytes)} (film and images {gib(self.film_bytes)}, "
-                f"launch {gib(self.launch_bytes)}) of {gib(self.available_bytes)} available")
+                f"peak memory about {gib(self.peak_bytes)} (process {gib(self.process_bytes)}, scene "
+                f"{gib(self.scene_bytes)}, film and images {gib(self.film_bytes)}, launch {gib(self.launch_bytes)}) "
+                f"of {gib(self.available_bytes)} available")
 
 
 def gib(n: float) -> str:
@@ -95,47 +111,55 @@ def available_memory() -> int:
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
-def film_bytes(width: int, height: int, border: int, float_bytes: int, images: int) -> int:
-    """The film (four sums per pixel over the bordered film) and `images` developed images."""
-    return (width + 2 * border) * (height + 2 * border) * 4 * float_bytes + images * width * height * IMAGE_BYTES
+def film_bytes(width: int, height: int, border: int, float_bytes: int, images: int, films: int = 1) -> int:
+    """`films` films (four sums per pixel over the bordered film) and `images` developed images."""
+    return films * (width + 2 * border) * (height + 2 * border) * 4 * float_bytes + images * width * height * IMAGE_BYTES
 
 
 def plan_render(width: int, height: int, spp: int, estimator: str, max_depth: int, *, border: int = 0,
                 float_bytes: int = 4, images: int = 2, slots: int = 8, direct: int = 16,
-                memory: int | None = None, max_pass_samples: int | None = None, wavefront: bool = False) -> Plan:
+                memory: int | None = None, max_pass_samples: int | None = None, wavefront: bool = False,
+                scene_bytes: int = 0) -> Plan:
     """The render's plan, or PlanError when it cannot fit. `images`: developed images held at once (the
     image and its PNG encoding count about two); `slots`, `direct`: the branching estimator's children
-    per vertex and shadow rays (BranchingEstimator); `wavefront`: the path tracer goes bounce by bounce."""
+    per vertex and shadow rays (BranchingEstimator); `wavefront`: the path tracer goes bounce by bounce;
+    `scene_bytes`: the scene's arrays (scene_bytes())."""
     memory = available_memory() if memory is None else memory
+    room = memory - scene_bytes     # what the film and the launches may take
     pixels = width * height
     passes = pass_spps(pixels, spp, MAX_PASS_SAMPLES if max_pass_samples is None else max_pass_samples)
-    film = film_bytes(width, height, border, float_bytes, images)
+    # in passes, the film as the passes before left it is kept through each (tracer.rendering.run_passes)
+    film = film_bytes(width, height, border, float_bytes, images, films=2 if len(passes) > 1 else 1)
     if pixels * 4 >= MAX_LANES:
         raise PlanError(f"{width} x {height} is {pixels:,} pixels; the film holds at most {MAX_LANES // 4:,} "
-                        f"(e.g. {_fit_size(width, height, MAX_LANES // 4 - 1)})")
+                        f"(e.g. {fit_size(width, height, MAX_LANES // 4 - 1)})")
     if estimator == "report":
         chunk, lanes = report_tree(slots, direct, max_depth)
         chunk = min(chunk, pixels * max(passes))
         children = chunk * lanes * slots
         launch = chunk * lanes * WAVE_LANE_BYTES + children * SPAWN_LANE_BYTES
-        if film + launch > memory or children >= MAX_LANES:
-            fit = _report_fit(slots, direct, max_depth, memory - film)
+        if film + launch > room or children >= MAX_LANES:
+            fit = _report_fit(slots, direct, max_depth, room - film)
             raise PlanError(f"the branching estimator's widest level holds up to {lanes:,} rays per camera sample "
                             f"(max_depth {max_depth}, {slots} children per vertex): about {gib(film + launch)} of "
-                            f"memory with the film, {gib(memory)} available; {fit}")
+                            f"memory with the film, {gib(room)} available{_besides(scene_bytes)}; {fit}")
     else:
         chunk = min(WAVEFRONT_CHUNK if wavefront else PATH_CHUNK, pixels * max(passes))
         launch = chunk * (WAVEFRONT_LANE_BYTES if wavefront else PATH_LANE_BYTES)
-    plan = Plan(width, height, spp, passes, chunk, film, launch, memory)
-    if plan.peak_bytes > memory:
+    plan = Plan(width, height, spp, passes, chunk, film, launch, memory, scene_bytes)
+    if film + launch > room:
         per_pixel = plan.film_bytes / pixels
-        raise PlanError(f"{width} x {height} needs about {gib(plan.peak_bytes)} of memory (film and images "
-                        f"{gib(film)}), {gib(memory)} available; at most about "
-                        f"{_fit_size(width, height, int((memory - launch) / per_pixel))} fits")
+        raise PlanError(f"{width} x {height} needs about {gib(film + launch)} of memory (film and images "
+                        f"{gib(film)}), {gib(room)} available{_besides(scene_bytes)}; at most about "
+                        f"{fit_size(width, height, int((room - launch) / per_pixel))} fits")
     return plan
 
 
-def _fit_size(width: int, height: int, pixels: int) -> str:
+def _besides(scene_bytes: int) -> str:
+    return f" besides the scene's {gib(scene_bytes)}" if scene_bytes >= 1 << 20 else ""
+
+
+def fit_size(width: int, height: int, pixels: int) -> str:
     """The largest size of the same aspect ratio within `pixels`."""
     scale = math.sqrt(max(pixels, 0) / (width * height))
     return f"{max(int(width * scale), 1)} x {max(int(height * scale), 1)}"

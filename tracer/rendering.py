@@ -9,14 +9,15 @@ from pathlib import Path
 
 import numpy as np
 
+from . import memory_guard
 from .compile_clock import CompileClock
-from .errors import SettingsError
+from .errors import OutOfMemory, SettingsError
 from .estimators import BranchingEstimator, PathEstimator, integer, make_estimator
 from .film import FILTERS, Film, ReconstructionFilter
 from .geometry import SceneGeometry, goes_bounce_by_bounce, uses_bvh
 from .jit import BACKEND, PRECISION
 from .launch import seed_state
-from .plan import Plan, plan_render
+from .plan import TEXEL_BYTES, TRIANGLE_BYTES, Plan, available_memory, gib, plan_render
 from .scene import Scene, SceneError
 
 ESTIMATORS = (PathEstimator.name, BranchingEstimator.name)
@@ -65,9 +66,10 @@ def render(scene: Scene | str | Path, estimator: str = "path", spp: int | None =
     `rfilter` is a ReconstructionFilter or the name of one with Mitsuba's defaults. `time_limit`
     (seconds) renders one sample per pixel per pass and stops after the last whole pass that fits:
     `result.spp` says how many were rendered. Arguments out of their domain raise SettingsError and a
-    render that cannot fit in memory PlanError, both before the first ray. `geometry`: a SceneGeometry of
-    this same scene to reuse across renders (built here when None; a mesh's BVH is reused in any case,
-    tracer.shapes.bvh_cache)."""
+    render that cannot fit in memory PlanError, both before the first ray; one that runs out of memory all
+    the same raises OutOfMemory, with the passes it completed as its `partial` result. `geometry`: a
+    SceneGeometry of this same scene to reuse across renders (built here when None; a mesh's BVH is reused in
+    any case, tracer.shapes.bvh_cache)."""
     if isinstance(scene, (str, Path)):
         from .mitsuba_xml import load_scene
         scene = load_scene(scene)
@@ -95,11 +97,30 @@ def render(scene: Scene | str | Path, estimator: str = "path", spp: int | None =
         nonlocal rays
         rays += estimator.render_pass(geo, scene, film, pass_spp, pass_seed(seed, index), plan.chunk, progress)
 
-    (rendered, pixels), seconds, compile_s = timed(lambda: (run_passes(plan.passes, time_limit, one_pass),
-                                                            film.develop()))
+    def passes():
+        rendered, failure = run_passes(plan.passes, time_limit, one_pass, film)
+        return rendered, failure, film.develop() if rendered else None
+
+    (rendered, failure, pixels), seconds, compile_s = timed(passes)
     settings = estimator.settings | {"passes": len(rendered), "requested_spp": spp}
-    return RenderResult(pixels, name, sum(rendered), max_depth, seconds, compile_s, rays, settings=settings,
-                        seed=seed)
+    result = None if not rendered else RenderResult(pixels, name, sum(rendered), max_depth, seconds, compile_s,
+                                                    rays, settings=settings, seed=seed)
+    if failure is not None:
+        raise OutOfMemory(out_of_memory_message(failure, plan, rendered), result)
+    return result
+
+
+def out_of_memory_message(failure: BaseException, plan: Plan, rendered: list[int]) -> str:
+    """One line: where the render ran out of memory, the figures, and what would fit."""
+    held, available = memory_guard.resident_bytes(), available_memory()
+    where = f"out of memory in pass {len(rendered) + 1} of {len(plan.passes)}"
+    figures = (f"the process holds {gib(held)}, {gib(available)} more available, " if held else "") + \
+        f"the plan estimated a peak of {gib(plan.peak_bytes)}"
+    if rendered:
+        fits = f"the {len(rendered)} passes done fit: {sum(rendered)} of {plan.spp} spp"
+    else:
+        fits = "no pass was complete (a render in passes, such as --time-limit's, keeps those done)"
+    return f"{where} ({failure}; {figures}); {fits}"
 
 
 def check_settings(scene: Scene, estimator: str, spp, seed, max_depth) -> tuple[str, int, int, int]:
@@ -141,8 +162,17 @@ def make_plan(scene: Scene, spp: int, estimator: PathEstimator | BranchingEstima
     else:
         extra = {"wavefront": goes_bounce_by_bounce(uses_bvh(scene))}
     return plan_render(width, height, spp, estimator.name, estimator.max_depth, border=border,
-                       float_bytes=8 if PRECISION == "double" else 4, images=images,
+                       float_bytes=8 if PRECISION == "double" else 4, images=images, scene_bytes=scene_bytes(scene),
                        max_pass_samples=width * height if one_spp_passes else None, **extra)
+
+
+def scene_bytes(scene: Scene) -> int:
+    """tracer.plan's estimate of the memory the scene's arrays take: its mesh triangles and texels."""
+    images = [b.texture.image for b in scene.bsdfs if getattr(b.texture, "image", None) is not None]
+    if scene.envmap is not None:
+        images.append(scene.envmap.image)
+    texels = sum(image.shape[0] * image.shape[1] for image in images)
+    return scene.triangle_count * TRIANGLE_BYTES + texels * TEXEL_BYTES
 
 
 def pass_seed(seed: int, index: int) -> int:
@@ -151,20 +181,31 @@ def pass_seed(seed: int, index: int) -> int:
     return seed if index == 0 else seed_state(seed, PASS_STREAM, index)
 
 
-def run_passes(passes: list[int], time_limit: float | None, render_pass) -> list[int]:
+def run_passes(passes: list[int], time_limit: float | None, render_pass,
+               film: Film | None = None) -> tuple[list[int], BaseException | None]:
     """Calls render_pass(index, spp) for each pass; with `time_limit` (seconds), stops before a pass that
     would end after it if it took as long as the last one (the first pass, which also compiles the kernels,
-    is always rendered, and may make the second look longer than it is). Returns the spp of the passes
-    rendered."""
+    is always rendered, and may make the second look longer than it is). A pass that runs out of memory
+    (memory_guard) stops the render, and `film` is put back as the passes before left it. Returns the spp of
+    the passes rendered and the allocation failure that stopped them, if one did."""
     start, done, last = time.perf_counter(), [], 0.0
     for index, spp in enumerate(passes):
         began = time.perf_counter()
         if time_limit is not None and done and began - start + last > time_limit:
             break
-        render_pass(index, spp)
+        # a second reference: the pass's first splat copies the film (Dr.Jit copies an array shared on write)
+        before = None if film is None or not done else type(film.data)(film.data)
+        try:
+            render_pass(index, spp)
+        except Exception as e:
+            if not memory_guard.is_allocation_failure(e):
+                raise
+            if before is not None:
+                film.data = before
+            return done, e
         last = time.perf_counter() - began
         done.append(spp)
-    return done
+    return done, None
 
 
 def timed(run):

@@ -10,6 +10,7 @@ import compileall
 import json
 import os
 import platform
+import re
 import statistics
 import subprocess
 import sys
@@ -35,6 +36,13 @@ MESH_TRIANGLES = (250_000, 1_000_000)
 MESH_SPP, MESH_DEPTH, MESH_SIZE = 64, 5, 256
 NEW_SCENE_TRIANGLES = (11000, 13000)   # cold start: two UV-sphere scenes whose BVHs have the same depth
 WHOLE_RUNS = 3                                  # whole-process runs of each renderer, alternated
+# The memory section: mitsuba-renderer/mitsuba-data's docs scenes (one per kind of content the tracer renders:
+# an environment map around serialized meshes in a BVH, area lights, spheres, PLY meshes, textures), at their
+# own size and MEMORY_DOCS_SPP spp: three or more launches, past the first, after which memory stays flat.
+MEMORY_DOCS = ("bsdf_dielectric_glass", "bsdf_diffuse_plain", "bsdf_conductor_gold", "bsdf_plastic_default",
+               "bsdf_twosided_cbox", "shape_ply_bunny", "shape_sphere_basic", "texture_checkerboard",
+               "integrator_depth_inf")
+MEMORY_DOCS_SPP = 4
 
 
 # ---- child side --------------------------------------------------------------------------------------
@@ -428,6 +436,75 @@ def whole_process(scene: Path, progress) -> dict:
     return {name: {"seconds": t, "median": statistics.median(t)} for name, t in times.items()}
 
 
+# `tracer render` in a child that writes its own peak resident set (VmHWM) at exit: wait4's ru_maxrss would also
+# count the parent's pages the child held between fork and exec (the bench's own ~200 MB).
+_PEAK_CHILD = """import atexit, os, sys
+def _peak():
+    with open("/proc/self/status") as f, open(os.environ["TRACER_PEAK_FILE"], "w") as out:
+        out.write(next(line.split()[1] for line in f if line.startswith("VmHWM:")))
+atexit.register(_peak)
+from tracer.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def peak_memory(scene: Path, defines: list[str] = ()) -> dict:
+    """`tracer render SCENE` in a child process: the plan's estimate of peak memory (as it prints it) and the
+    child's peak resident set (its VmHWM at exit), both in MiB, and its wall seconds."""
+    with tempfile.TemporaryDirectory() as tmp:
+        peak = Path(tmp) / "peak"
+        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", TRACER_BVH_CACHE="off", TRACER_PEAK_FILE=str(peak))
+        start = time.perf_counter()   # the BVH is built, as on a scene's first render
+        run = subprocess.run([sys.executable, "-c", _PEAK_CHILD, "render", str(scene), "-o", f"{tmp}/m.exr",
+                              "--no-png", "--quiet", *defines], cwd=ROOT, env=env, capture_output=True, text=True)
+        seconds = time.perf_counter() - start
+        if run.returncode != 0:
+            raise RuntimeError(f"tracer render {scene.name} failed ({run.returncode}): {run.stderr.strip()[-300:]}")
+        peak_kib = int(peak.read_text())
+    found = re.search(r"peak memory about ([\d.]+) (MiB|GiB)", run.stdout)
+    estimate = float(found[1]) * (1024 if found[2] == "GiB" else 1)
+    size = re.search(r" at (\d+) x (\d+), (\d+) spp", run.stdout)
+    return {"estimate_mib": estimate, "peak_mib": peak_kib / 1024, "seconds": seconds,
+            "settings": f"{size[1]} x {size[2]}, {size[3]} spp"}
+
+
+def memory(progress, mitsuba_data: Path | None = None) -> dict:
+    """The plan's estimate of peak memory against the peak measured (peak_memory): every project scene at its
+    own settings, and, given a copy of mitsuba-data, its MEMORY_DOCS scenes at MEMORY_DOCS_SPP spp."""
+    scenes = [(f"mitsuba_scenes/{p.name}", p, []) for p in sorted((ROOT / "mitsuba_scenes").glob("*.xml"))]
+    if mitsuba_data is not None:
+        scenes += [(f"docs/scenes/{name}.xml", mitsuba_data / "docs" / "scenes" / f"{name}.xml",
+                    ["-D", f"spp={MEMORY_DOCS_SPP}"]) for name in MEMORY_DOCS]
+    rows = {}
+    for name, path, defines in scenes:
+        progress(f"memory: {name}")
+        rows[name] = peak_memory(path, defines)
+    return {"rows": rows, "docs": mitsuba_data is not None}
+
+
+def memory_markdown(section: dict) -> list[str]:
+    """The memory section of the report: estimate, measured peak and their ratio per scene."""
+    rows = section["rows"]
+    ratios = {name: r["peak_mib"] / r["estimate_mib"] for name, r in rows.items()}
+    worst = max(ratios, key=lambda n: max(ratios[n], 1 / ratios[n]))
+    docs = (f"and `mitsuba-renderer/mitsuba-data`'s docs scenes that show each kind of content the tracer renders, "
+            f"at their own size and {MEMORY_DOCS_SPP} spp (three or more launches)" if section["docs"] else
+            "(mitsuba-data's docs scenes not measured in this run: `--mitsuba-data` not given)")
+    lines = ["## Memory: the plan's estimate against the measured peak", "",
+             "`tracer render SCENE` in a process of its own (BVHs built, no on-disk cache): the peak memory the plan "
+             "prints before the first ray (`tracer/plan.py`: the process, the scene's meshes and textures, film "
+             "and images, one launch) against the process's peak resident set (its `VmHWM` at exit). The project's "
+             "scenes at "
+             f"their own settings {docs}. Ratio: measured / estimate.", "",
+             "| scene | settings | estimate [MiB] | measured peak [MiB] | ratio |", "|---|---|---:|---:|---:|"]
+    for name, r in rows.items():
+        lines.append(f"| {name} | {r['settings']} | {r['estimate_mib']:.0f} | {r['peak_mib']:.0f} | "
+                     f"{ratios[name]:.2f} |")
+    lines += ["", f"Ratios from {min(ratios.values()):.2f} to {max(ratios.values()):.2f} (furthest from 1: {worst}).",
+              ""]
+    return lines
+
+
 def main_child(arg: str) -> None:
     print(json.dumps(_child(json.loads(arg))))
 
@@ -436,18 +513,20 @@ if __name__ == "__main__" and len(sys.argv) > 2 and sys.argv[1] == "--child":
     main_child(sys.argv[2])
 
 
-def sections() -> dict:
-    """The bench's sections by name, in the order they run."""
+def sections(mitsuba_data: Path | None = None) -> dict:
+    """The bench's sections by name, in the order they run (`mitsuba_data`: a copy of mitsuba-data, whose
+    docs scenes the memory section measures too)."""
     return {"side_by_side": lambda out, progress: side_by_side(out, progress),
             "tables": lambda out, progress: report_tables(progress),
             "ceiling": lambda out, progress: ceiling(progress),
             "cold": lambda out, progress: cold_start(progress),
             "specialisation": lambda out, progress: specialisation(progress),
             "scaling": lambda out, progress: scaling(progress),
-            "meshes": lambda out, progress: meshes(progress)}
+            "meshes": lambda out, progress: meshes(progress),
+            "memory": lambda out, progress: memory(progress, mitsuba_data)}
 
 
-def run(out: Path, only: list[str] | None = None) -> str:
+def run(out: Path, only: list[str] | None = None, mitsuba_data: Path | None = None) -> str:
     """Every measurement (or only the sections named, the others kept from the previous run's
     performance.json), then reports/performance.md and its plot; returns the markdown."""
     from datetime import datetime, timezone
@@ -469,7 +548,7 @@ def run(out: Path, only: list[str] | None = None) -> str:
     today = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     results.setdefault("when", {})
     results.setdefault("load", {})
-    for name, section in sections().items():
+    for name, section in sections(mitsuba_data).items():
         if not only or name in only:
             before = os.getloadavg()[0]
             results[name] = section(out, progress)
@@ -617,6 +696,7 @@ def markdown(r: dict) -> str:
               f"`tracer.shapes.BVH_THRESHOLD` = {BVH_THRESHOLD} triangles). Mitsuba, whose meshes Embree traces, "
               f"takes {by_n[largest]['Mitsuba'] / by_n[smallest]['Mitsuba']:.1f}x.", ""]
     lines += mesh_markdown(r["meshes"])
+    lines += memory_markdown(r["memory"])
     return "\n".join(lines)
 
 

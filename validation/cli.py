@@ -78,8 +78,10 @@ def _parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="time the tracer and Mitsuba side by side: reports/performance.md")
     b.add_argument("--output", "-o", type=Path, default=Path("reports"))
     b.add_argument("--only", nargs="+", metavar="SECTION", help="run only these sections (side_by_side, tables, "
-                   "ceiling, cold, specialisation, scaling, meshes), keeping the others from the previous "
+                   "ceiling, cold, specialisation, scaling, meshes, memory), keeping the others from the previous "
                    "performance.json; the report says which run each section comes from")
+    b.add_argument("--mitsuba-data", type=Path, metavar="DIR", help="a copy of mitsuba-renderer/mitsuba-data: the "
+                   "memory section measures its docs scenes too")
     q = sub.add_parser("faults", help="write reports/faults.md: which injected faults the test catches at which spp")
     q.add_argument("--output", "-o", type=Path, default=Path("reports/faults.md"))
     n = sub.add_parser("snapshot", help="render every project scene small with one Dr.Jit thread into DIR (.npy); "
@@ -371,7 +373,7 @@ def _run(args) -> int:
     if args.command == "bench":
         from .benchmark import run
 
-        print(run(args.output, args.only))
+        print(run(args.output, args.only, args.mitsuba_data))
         return 0
     if args.command == "snapshot":
         return _snapshot(args)
