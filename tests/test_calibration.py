@@ -79,13 +79,15 @@ def test_the_equivalence_section_replaces_its_predecessor_and_keeps_the_rest(tmp
              "inconclusive": 0, "spent_equivalent": [64], "spent_disagree": [320], "spent_inconclusive": [],
              "seconds": 1.0} for s in ce.SCENES for a in ce.ALPHAS for b in ce.BLOCK_MARGINS for k in ce.BIASES]
     monkeypatch.setattr(ce, "measure", lambda repetitions: rows)
+    monkeypatch.setattr(ce, "faults", lambda: [{"fault": "f", "spp": 256, "faulty": "disagree", "correct": "equivalent",
+                                                "faulty_mean": -0.05, "correct_detectable": [0.01] * 3}])
     out = tmp_path / "calibration.md"
     out.write_text("# Calibration\n\n## Null\n\nkept\n\n## Time per check\n\nkept too\n")
     ce.update(out, 2)
     ce.update(out, 2)
     text = out.read_text()
     assert text.count(ce.SECTION) == 1 and text.index("## Null") < text.index(ce.SECTION) < text.index("## Time")
-    assert "kept too" in text and "| 20% | 1 | 3/6" in text
+    assert "kept too" in text and "| 20% | 1 | 3/6" in text and "| f | disagree / equivalent | -5.00% |" in text
 
 
 def test_mitsubas_criterion_passes_its_reference_and_fails_a_dim_image():

@@ -107,6 +107,22 @@ def measure(repetitions: int, cache: Path = CACHE) -> list[dict]:
     return rows
 
 
+def faults(spp: int = 256) -> list[dict]:
+    """The injected faults (validation.faults) under `validate check --margin 1%` at the default block margin,
+    one stage of `spp`: the verdict on the faulty and on the correct tracer, with the faulty one's image mean."""
+    from .faults import FAULTS
+    from .power import measure as check_fault
+
+    margin = Margin(IMAGE_MARGIN / SCALE, protocol.BLOCK_MARGIN)
+    rows = []
+    for fault in tqdm(FAULTS.values(), desc="faults with a margin"):
+        cell = check_fault(fault, spp, margin)
+        rows.append({"fault": fault.name, "spp": spp, "faulty": cell.faulty.verdict, "correct": cell.correct.verdict,
+                     "faulty_mean": cell.faulty.comparison.relative_mean_difference,
+                     "correct_detectable": [float(x) for x in cell.correct.comparison.detectable_image]})
+    return rows
+
+
 def _rate(k: int, n: int) -> str:
     lo, hi = interval(k, n)
     return f"{k}/{n} [{lo:.1%}, {hi:.1%}]"
@@ -174,6 +190,20 @@ def update(out: Path, repetitions: int) -> Path:
     earlier one and keeping every other section; its rows go to calibration_equivalence.json beside it."""
     from .provenance import replace_section, write_json
 
-    rows = measure(repetitions)
-    write_json(out.with_name("calibration_equivalence.json"), rows)
-    return replace_section(out, SECTION, markdown(rows, repetitions), before="## Time per check")
+    rows, injected = measure(repetitions), faults()
+    write_json(out.with_name("calibration_equivalence.json"), {"sequences": rows, "faults": injected})
+    return replace_section(out, SECTION, markdown(rows, repetitions) + [""] + fault_table(injected),
+                           before="## Time per check")
+
+
+def fault_table(rows: list[dict]) -> list[str]:
+    lines = [f"The injected faults (validation/faults.py) under `--margin {IMAGE_MARGIN / SCALE:.0%}` (block margin "
+             f"{protocol.BLOCK_MARGIN:.0%}), one stage of 16 x {rows[0]['spp'] if rows else 0} "
+             "Mitsuba samples per pass (the branching estimator: 1/8 as many camera rays), 32 x 32: the verdict on "
+             "the faulty tracer / on the correct one, and the faulty tracer's image mean against Mitsuba's:", "",
+             "| fault | faulty / correct | faulty image mean | correct: detectable bias of the image mean (RGB) |",
+             "|---|---|---:|---|"]
+    for r in rows:
+        lines.append(f"| {r['fault']} | {r['faulty']} / {r['correct']} | {r['faulty_mean']:+.2%} | "
+                     + "/".join(f"{x:.2%}" for x in r["correct_detectable"]) + " |")
+    return lines

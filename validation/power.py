@@ -12,6 +12,7 @@ from .check import REPORT_REFERENCE_SPP, CheckResult, Settings, check
 from .faults import FAULTS, Fault
 from .provenance import write_text
 from .renderers import TracerRenderer
+from .stats import Margin
 
 SPPS = (4, 16, 64, 256)     # Mitsuba's samples per pass; the path estimator renders the same
 REPORT = dict(direct=4, indirect=4)
@@ -30,9 +31,10 @@ def tracer_spp(fault: Fault, spp: int) -> int:
     return max(spp // REPORT_REFERENCE_SPP, 1) if fault.estimator == "report" else spp
 
 
-def measure(fault: Fault, spp: int) -> Cell:
+def measure(fault: Fault, spp: int, margin: Margin | None = None) -> Cell:
+    """The check on the faulty and the correct tracer at `spp` (one stage; with `margin`: equivalence)."""
     renderer = TracerRenderer(fault.estimator, **(REPORT if fault.estimator == "report" else {}))
-    settings = Settings(spp=tracer_spp(fault, spp), max_spp=tracer_spp(fault, spp))
+    settings = Settings(spp=tracer_spp(fault, spp), max_spp=tracer_spp(fault, spp), margin=margin)
     scene = Path("mitsuba_scenes") / fault.scene
     with fault.inject():
         faulty = check(scene, renderer, fault.max_depth, settings=settings)
