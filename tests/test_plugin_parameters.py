@@ -55,6 +55,9 @@ VALUES = {
     "k": '<rgb name="k" value="3.9, 2.4, 2.2"/>',
     "specular_reflectance": '<rgb name="specular_reflectance" value="0.5"/>',
     "specular_transmittance": '<rgb name="specular_transmittance" value="0.5"/>',
+    "distribution": '<string name="distribution" value="ggx"/>', "alpha": '<float name="alpha" value="0.3"/>',
+    "alpha_u": '<float name="alpha_u" value="0.3"/>', "alpha_v": '<float name="alpha_v" value="0.3"/>',
+    "sample_visible": '<boolean name="sample_visible" value="false"/>',
     "int_ior": '<string name="int_ior" value="water"/>', "nonlinear": '<boolean name="nonlinear" value="true"/>',
     "diffuse_reflectance": '<rgb name="diffuse_reflectance" value="0.2, 0.3, 0.4"/>', "ext_ior": '<float name="ext_ior" value="1.1"/>',
     "radiance": '<rgb name="radiance" value="2, 3, 4"/>', "sampling_weight": '<float name="sampling_weight" value="2"/>',
@@ -91,7 +94,9 @@ EXPECTED = {
               "flip_tex_coords": NO_EFFECT, "shape_index": HONOURED, "p0": HONOURED, "p1": HONOURED},
     "bsdf": {"reflectance": HONOURED, "allow_transmission": REFUSED, "material": HONOURED, "eta": HONOURED,
              "k": HONOURED, "specular_reflectance": HONOURED, "specular_transmittance": REFUSED, "int_ior": HONOURED,
-             "ext_ior": HONOURED, "nonlinear": HONOURED, "diffuse_reflectance": HONOURED, "opacity": HONOURED},
+             "ext_ior": HONOURED, "nonlinear": HONOURED, "diffuse_reflectance": HONOURED, "opacity": HONOURED,
+             "distribution": HONOURED, "alpha": HONOURED, "alpha_u": REFUSED, "alpha_v": REFUSED,
+             "sample_visible": HONOURED},
     "texture": {"color0": HONOURED, "color1": HONOURED, "to_uv": HONOURED, "filename": HONOURED, "bitmap": REFUSED,
                 "data": REFUSED, "raw": HONOURED, "filter_type": HONOURED, "wrap_mode": HONOURED, "format": REFUSED,
                 "accel": NO_EFFECT},
@@ -111,6 +116,7 @@ SPECIAL = {   # (tag, kind, parameter) whose handling differs from the tag's oth
     ("shape", "obj", "flip_tex_coords"): HONOURED,      # its test file has texture coordinates, the PLY's none
     ("bsdf", "dielectric", "specular_reflectance"): REFUSED,
     ("bsdf", "thindielectric", "specular_transmittance"): HONOURED,
+    ("bsdf", "roughdielectric", "specular_transmittance"): HONOURED,
 }
 
 

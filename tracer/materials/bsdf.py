@@ -128,6 +128,11 @@ class BSDF:
     texture: Checkerboard | Bitmap | None = None   # a diffuse reflectance given by a texture
     specular_reflectance: tuple[float, float, float] = (1.0, 1.0, 1.0)   # plastic's specular layer
     nonlinear: bool = False                                              # plastic's internal scattering model
+    specular_transmittance: tuple[float, float, float] = (1.0, 1.0, 1.0)  # roughdielectric's
+    distribution: str = "beckmann"      # the rough kinds' microfacet distribution (materials.microfacet)
+    alpha_u: float = 0.1
+    alpha_v: float = 0.1
+    sample_visible: bool = True
     back: BSDF | None = None        # a two-sided material's back, where it differs from the front (this BSDF)
     opacity: float = 1.0            # a `mask`: the probability of scattering by this BSDF (else the ray passes)
 

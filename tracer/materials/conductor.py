@@ -5,28 +5,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..ior import named_conductor
 from ..jit import Array2f, Array3f, Bool, Float, UInt32
 from ..spectra import rgb
 from .bsdf import BSDF, DELTA_REFLECTION, BSDFSample, front, reflect_local, zero_unless
 from .fresnel import fresnel_conductor
-from .reading import check_unit_interval
+from .reading import check_unit_interval, read_complex_ior
 
 NAME, FLAGS = "conductor", DELTA_REFLECTION
 PLUGINS = {"conductor": ("material", "eta", "k", "specular_reflectance")}
 
 
 def from_xml(ctx, props, node) -> BSDF:
-    material = props.get("material", "none", ("string",))
-    if props.has("eta") or material == "none":
-        if material != "none":
-            raise ctx.error(node, "give either eta and k or a material, not both (as in Mitsuba)")
-        eta, k = props.colour("eta", 0.0, unbounded=True), props.colour("k", 1.0, unbounded=True)
-    else:
-        try:
-            eta, k = (np.array(v) for v in named_conductor(material))
-        except KeyError as e:
-            raise ctx.error(props.values["material"], e.args[0]) from None
+    eta, k = read_complex_ior(ctx, props, node)
     spec = props.colour("specular_reflectance", 1.0)
     props.finish()
     check_unit_interval(ctx, node, "specular_reflectance", spec)

@@ -11,10 +11,12 @@ import drjit as dr
 
 from ..jit import Array2f, Array3f, Bool, Float, UInt32
 from ..sampling import coordinate_system
-from . import conductor, dielectric, diffuse, null, plastic, thindielectric
+from . import (conductor, dielectric, diffuse, null, plastic, roughconductor, roughdielectric, roughplastic,
+               thindielectric)
 from .bsdf import DELTA, NULL, SMOOTH, TRANSMISSION, BSDFSample
 
-KINDS = (diffuse, conductor, dielectric, plastic, null, thindielectric)     # a kind's code is its index
+# a kind's code is its index
+KINDS = (diffuse, conductor, dielectric, plastic, null, thindielectric, roughconductor, roughdielectric, roughplastic)
 KIND_CODE = {module.NAME: code for code, module in enumerate(KINDS)}
 
 

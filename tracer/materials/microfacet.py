@@ -194,3 +194,25 @@ def _beckmann_visible_slopes(cos_theta_i: Float, u) -> tuple[Float, Float]:
         value = 1.0 + x + INV_SQRT_PI * tan_theta_i * dr.exp(-slope * slope) - u0
         x = x - value / (1.0 - slope * tan_theta_i)
     return dr.erfinv(x), dr.erfinv(2.0 * u1 - 1.0)
+
+
+def from_row(bsdfs: list, kind: str, row: list[Float]) -> Microfacet:
+    """The distribution of each lane's material from its table row [ggx, sample_visible, alpha_u, alpha_v]
+    (see `row`). A choice every material of the kind shares is a Python bool, so only its branch is traced;
+    where all are isotropic alpha_v is alpha_u (Mitsuba's isotropic sampling of all normals)."""
+    ours = [b for b in bsdfs if b.kind == kind]
+
+    def flag(test, column: Float):
+        values = {bool(test(b)) for b in ours}
+        return values.pop() if len(values) == 1 else column > 0.5
+
+    ggx = flag(lambda b: b.distribution == "ggx", row[0])
+    visible = flag(lambda b: b.sample_visible, row[1])
+    if all(b.alpha_u == b.alpha_v for b in ours):
+        return microfacet(ggx, row[2], None, visible)
+    return microfacet(ggx, row[2], row[3], visible)
+
+
+def row(b) -> list[float]:
+    """A material's distribution as table fields (`from_row` reads them)."""
+    return [float(b.distribution == "ggx"), float(b.sample_visible), b.alpha_u, b.alpha_v]

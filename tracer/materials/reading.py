@@ -1,7 +1,7 @@
 """What the material modules' `from_xml` share: indices of refraction by value or name, reflectance bounds."""
 import numpy as np
 
-from ..ior import named_ior
+from ..ior import named_conductor, named_ior
 from ..spectra import rgb
 
 
@@ -20,3 +20,51 @@ def check_unit_interval(ctx, node, name: str, value: np.ndarray) -> None:
     """Refuses a reflectance outside [0, 1]."""
     if np.any(value < 0) or np.any(value > 1):
         raise ctx.error(node, f"{name} must lie in [0, 1], got {rgb(value)}")
+
+
+DISTRIBUTIONS = ("beckmann", "ggx")
+
+
+def read_microfacet(ctx, props, node, anisotropic: bool = True) -> dict:
+    """A microfacet distribution's parameters as Mitsuba reads them: `distribution` (beckmann by default),
+    `alpha` (0.1) or both `alpha_u` and `alpha_v`, `sample_visible` (true). Refuses what Mitsuba refuses
+    (only one of alpha_u / alpha_v, alpha with them, another distribution, negative roughness) and
+    alpha_u != alpha_v: Mitsuba refuses it where not `anisotropic` (roughplastic); elsewhere the kernels
+    handle it (materials.microfacet) but the shading frame would not orient it as Mitsuba does. A roughness
+    given by a texture is left unread, so the loader refuses it by name."""
+    distribution = props.get("distribution", "beckmann", ("string",)).lower()
+    if distribution not in DISTRIBUTIONS:
+        raise ctx.error(props.values["distribution"], f"invalid distribution '{distribution}': must be "
+                                                      "'beckmann' or 'ggx' (as in Mitsuba)")
+    given = [name for name in ("alpha_u", "alpha_v") if props.has(name)]
+    if given and props.has("alpha"):
+        raise ctx.error(node, "give either alpha or alpha_u and alpha_v, not both (as in Mitsuba)")
+    if len(given) == 1:
+        raise ctx.error(node, "both alpha_u and alpha_v must be given (as in Mitsuba)")
+    if given:
+        alpha_u, alpha_v = (float(props.get(n, 0.1, ("float", "integer"))) for n in ("alpha_u", "alpha_v"))
+    else:
+        alpha_u = alpha_v = float(props.get("alpha", 0.1, ("float", "integer")))
+    if min(alpha_u, alpha_v) < 0:
+        raise ctx.error(node, f"roughness must not be negative, got alpha_u = {alpha_u}, alpha_v = {alpha_v}")
+    if alpha_u != alpha_v:
+        why = ("nor by Mitsuba" if not anisotropic else "yet: the tracer's shading frames do not follow Mitsuba's "
+               "surface tangents (dp/du), which orient alpha_u")
+        raise ctx.error(node, f"anisotropic roughness (alpha_u = {alpha_u}, alpha_v = {alpha_v}) is not "
+                              f"supported by '{props.kind}' ({why})")
+    visible = props.get("sample_visible", True, ("boolean",))
+    return dict(distribution=distribution, alpha_u=alpha_u, alpha_v=alpha_v, sample_visible=bool(visible))
+
+
+def read_complex_ior(ctx, props, node) -> tuple[np.ndarray, np.ndarray]:
+    """A conductor's eta and k: given (unbounded colours; eta 0, k 1 by default) or by `material` name
+    (tracer.ior), not both, as Mitsuba reads them."""
+    material = props.get("material", "none", ("string",))
+    if props.has("eta") or material == "none":
+        if material != "none":
+            raise ctx.error(node, "give either eta and k or a material, not both (as in Mitsuba)")
+        return props.colour("eta", 0.0, unbounded=True), props.colour("k", 1.0, unbounded=True)
+    try:
+        return tuple(np.array(v) for v in named_conductor(material))
+    except KeyError as e:
+        raise ctx.error(props.values["material"], e.args[0]) from None

@@ -8,13 +8,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import drjit as dr
+import numpy as np
 
 from ..jit import Array3f, Bool, Float, UInt32
-from .flags import BSDFFlags, BSDFSample
+from ..spectra import rgb
+from . import microfacet as mf
+from .bsdf import BSDF, GLOSSY_REFLECTION, BSDFSample
 from .fresnel import fresnel_conductor, reflect
 from .microfacet import Microfacet, pick
+from .reading import check_unit_interval, read_complex_ior, read_microfacet
 
-FLAGS = BSDFFlags.GLOSSY_REFLECTION | BSDFFlags.FRONT_SIDE
+NAME, FLAGS = "roughconductor", GLOSSY_REFLECTION
+PLUGINS = {"roughconductor": ("distribution", "alpha", "alpha_u", "alpha_v", "sample_visible", "material", "eta",
+                              "k", "specular_reflectance")}
 
 
 @dataclass
@@ -23,6 +29,31 @@ class RoughConductorParams:
     eta: Array3f
     k: Array3f
     specular_reflectance: Array3f
+
+
+def from_xml(ctx, props, node) -> BSDF:
+    distribution = read_microfacet(ctx, props, node)
+    eta, k = read_complex_ior(ctx, props, node)
+    spec = props.colour("specular_reflectance", 1.0)
+    props.finish()
+    check_unit_interval(ctx, node, "specular_reflectance", spec)
+    return BSDF(NAME, rgb(spec), eta=rgb(eta), k=rgb(k), **distribution)
+
+
+def table(bsdfs: list[BSDF]) -> np.ndarray:
+    """Per rough conductor: its distribution (microfacet.row), eta, k; the specular reflectance is the
+    shared reflectance column."""
+    rows = np.zeros((len(bsdfs), 10))
+    for i, b in enumerate(bsdfs):
+        if b.kind == NAME:
+            rows[i] = [*mf.row(b), *b.eta, *b.k]
+    return rows
+
+
+def params(tables, surf, active: Bool) -> RoughConductorParams:
+    r = tables.row(NAME, surf.material, active)
+    return RoughConductorParams(mf.from_row(tables.bsdfs, NAME, r), Array3f(*r[4:7]), Array3f(*r[7:10]),
+                                tables.reflectance(surf, active))
 
 
 def sample(p: RoughConductorParams, wi: Array3f, u1: Float, u2, active: Bool) -> tuple[BSDFSample, Array3f]:
@@ -37,7 +68,7 @@ def sample(p: RoughConductorParams, wi: Array3f, u1: Float, u2, active: Bool) ->
                   lambda: p.distr.G(wi, wo, m) * dr.dot(wi, m) / (cos_i * m.z))
     pdf = pdf / (4.0 * dr.dot(wo, m))
     weight = fresnel_conductor(dr.dot(wi, m), p.eta, p.k) * p.specular_reflectance * weight
-    bs = BSDFSample(wo, dr.select(active, pdf, 0.0), Float(1.0), UInt32(int(BSDFFlags.GLOSSY_REFLECTION)))
+    bs = BSDFSample(wo, dr.select(active, pdf, 0.0), Float(1.0), UInt32(GLOSSY_REFLECTION))
     return bs, dr.select(active, weight, 0.0)
 
 

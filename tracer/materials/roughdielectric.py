@@ -22,14 +22,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import drjit as dr
+import numpy as np
 
 from ..jit import Array3f, Bool, Float, UInt32
-from .flags import BSDFFlags, BSDFSample
+from ..spectra import rgb
+from . import microfacet as mf
+from .bsdf import BSDF, GLOSSY_REFLECTION, GLOSSY_TRANSMISSION, BSDFSample
 from .fresnel import fresnel_dielectric, reflect
 from .microfacet import Microfacet, mulsign, pick
+from .reading import check_unit_interval, read_ior, read_microfacet
 
-FLAGS = (BSDFFlags.GLOSSY_REFLECTION | BSDFFlags.GLOSSY_TRANSMISSION | BSDFFlags.FRONT_SIDE
-         | BSDFFlags.BACK_SIDE | BSDFFlags.NON_SYMMETRIC)
+NAME = "roughdielectric"
+FLAGS = GLOSSY_REFLECTION | GLOSSY_TRANSMISSION
+PLUGINS = {"roughdielectric": ("distribution", "alpha", "alpha_u", "alpha_v", "sample_visible", "int_ior",
+                               "ext_ior", "specular_reflectance", "specular_transmittance")}
 
 
 @dataclass
@@ -38,6 +44,35 @@ class RoughDielectricParams:
     eta: Float                       # int_ior / ext_ior
     specular_reflectance: Array3f
     specular_transmittance: Array3f
+
+
+def from_xml(ctx, props, node) -> BSDF:
+    distribution = read_microfacet(ctx, props, node)
+    ior = {k: read_ior(ctx, props, k, d) for k, d in (("int_ior", "bk7"), ("ext_ior", "air"))}
+    spec = {k: props.colour(k, 1.0) for k in ("specular_reflectance", "specular_transmittance")}
+    props.finish()
+    if min(ior.values()) < 0 or ior["int_ior"] == ior["ext_ior"]:
+        raise ctx.error(node, "the interior and exterior indices of refraction must be positive and differ "
+                              f"(as in Mitsuba), got {ior['int_ior']} and {ior['ext_ior']}")
+    for name, value in spec.items():
+        check_unit_interval(ctx, node, name, value)
+    return BSDF(NAME, (1.0, 1.0, 1.0), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"],
+                specular_reflectance=rgb(spec["specular_reflectance"]),
+                specular_transmittance=rgb(spec["specular_transmittance"]), **distribution)
+
+
+def table(bsdfs: list[BSDF]) -> np.ndarray:
+    """Per rough dielectric: its distribution (microfacet.row), eta, specular reflectance and transmittance."""
+    rows = np.zeros((len(bsdfs), 11))
+    for i, b in enumerate(bsdfs):
+        if b.kind == NAME:
+            rows[i] = [*mf.row(b), b.int_ior / b.ext_ior, *b.specular_reflectance, *b.specular_transmittance]
+    return rows
+
+
+def params(tables, surf, active: Bool) -> RoughDielectricParams:
+    r = tables.row(NAME, surf.material, active)
+    return RoughDielectricParams(mf.from_row(tables.bsdfs, NAME, r), r[4], Array3f(*r[5:8]), Array3f(*r[8:11]))
 
 
 def fresnel(cos_i: Float, eta: Float) -> tuple[Float, Float, Float, Float]:
@@ -100,8 +135,7 @@ def sample(p: RoughDielectricParams, wi: Array3f, u1: Float, u2, active: Bool) -
     weight *= pick(p.distr.sample_visible, lambda: p.distr.smith_g1(wo, m),
                    lambda: p.distr.G(wi, wo, m) * dr.dot(wi, m) / (cos_i * m.z) * p.distr.D(m) / sampling.D(m))
     pdf *= _jacobian(wi, wo, m, eta, reflected)
-    kind = dr.select(reflected, UInt32(int(BSDFFlags.GLOSSY_REFLECTION)),
-                     UInt32(int(BSDFFlags.GLOSSY_TRANSMISSION)))
+    kind = dr.select(reflected, UInt32(GLOSSY_REFLECTION), UInt32(GLOSSY_TRANSMISSION))
     return BSDFSample(wo, dr.select(active, pdf, 0.0), eta, kind), dr.select(active, weight, 0.0)
 
 

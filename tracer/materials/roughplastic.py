@@ -24,13 +24,19 @@ import numpy as np
 
 from ..jit import Array3f, Bool, Float, UInt32
 from ..sampling import square_to_uniform_disk_concentric
-from .flags import BSDFFlags, BSDFSample
+from ..spectra import rgb
+from . import microfacet as mf
+from .bsdf import BSDF, DIFFUSE_REFLECTION, GLOSSY_REFLECTION, BSDFSample
 from .fresnel import reflect
 from .microfacet import Microfacet, microfacet, pick
+from .reading import check_unit_interval, read_ior, read_microfacet
 from .roughdielectric import fresnel, refract
 
-FLAGS = BSDFFlags.GLOSSY_REFLECTION | BSDFFlags.DIFFUSE_REFLECTION | BSDFFlags.FRONT_SIDE
+NAME, FLAGS = "roughplastic", GLOSSY_REFLECTION | DIFFUSE_REFLECTION
+PLUGINS = {"roughplastic": ("distribution", "alpha", "alpha_u", "alpha_v", "sample_visible", "int_ior", "ext_ior",
+                            "diffuse_reflectance", "specular_reflectance", "nonlinear")}
 TRANSMITTANCE_RES = 64       # cosines at which T is tabulated (Mitsuba's MI_ROUGH_TRANSMITTANCE_RES)
+FIELDS = 11                  # table fields before T: microfacet.row, eta, s, R_int, nonlinear, specular (3)
 
 
 @dataclass
@@ -42,8 +48,58 @@ class RoughPlasticParams:
     nonlinear: bool | Bool
     specular_weight: Float            # s: mean specular / (mean specular + mean diffuse reflectance)
     internal_reflectance: Float       # R_int
-    transmittance: Float              # rows of TRANSMITTANCE_RES values of T, one per material
+    transmittance: Float              # T at TRANSMITTANCE_RES cosines: at row * stride + offset + k
     row: UInt32 | int = 0             # this lane's row of `transmittance`
+    stride: int = TRANSMITTANCE_RES
+    offset: int = 0
+
+
+def from_xml(ctx, props, node) -> BSDF:
+    distribution = read_microfacet(ctx, props, node, anisotropic=False)
+    ior = {k: read_ior(ctx, props, k, d) for k, d in (("int_ior", "polypropylene"), ("ext_ior", "air"))}
+    rho = props.colour("diffuse_reflectance", 0.5, textured=True)
+    spec = props.colour("specular_reflectance", 1.0)
+    nonlinear = props.get("nonlinear", False, ("boolean",))
+    props.finish()
+    texture = None if isinstance(rho, np.ndarray) else rho
+    if texture is not None:     # its mean steers only which lobe is sampled, not the estimate
+        rho = np.full(3, 0.5)
+    for name, value in (("diffuse_reflectance", rho), ("specular_reflectance", spec)):
+        check_unit_interval(ctx, node, name, value)
+    if min(ior.values()) < 0 or ior["int_ior"] == ior["ext_ior"]:
+        raise ctx.error(node, "the interior and exterior indices of refraction must be positive and differ "
+                              f"(as in Mitsuba), got {ior['int_ior']} and {ior['ext_ior']}")
+    return BSDF(NAME, rgb(rho), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"], specular_reflectance=rgb(spec),
+                nonlinear=bool(nonlinear), texture=texture, **distribution)
+
+
+def table(bsdfs: list[BSDF]) -> np.ndarray:
+    """Per rough plastic: its distribution (microfacet.row), eta, the specular sampling weight s, R_int,
+    nonlinear, the specular reflectance, then T at TRANSMITTANCE_RES cosines (`coating`, computed once per
+    distinct coating)."""
+    rows = np.zeros((len(bsdfs), FIELDS + TRANSMITTANCE_RES))
+    coatings = {}
+    for i, b in enumerate(bsdfs):
+        if b.kind == NAME:
+            eta = b.int_ior / b.ext_ior
+            key = (b.distribution, b.alpha_u, eta)
+            if key not in coatings:
+                coatings[key] = coating(b.distribution == "ggx", b.alpha_u, eta)
+            t, r_int = coatings[key]
+            s_mean, d_mean = np.mean(b.specular_reflectance), np.mean(b.reflectance)
+            rows[i] = [*mf.row(b), eta, s_mean / (s_mean + d_mean), r_int, float(b.nonlinear),
+                       *b.specular_reflectance, *t]
+    return rows
+
+
+def params(tables, surf, active: Bool) -> RoughPlasticParams:
+    values, fields = tables.table(NAME)
+    head = [dr.gather(Float, values, surf.material * fields + k, active) for k in range(FIELDS)]
+    nonlinear = {b.nonlinear for b in tables.bsdfs if b.kind == NAME}
+    return RoughPlasticParams(mf.from_row(tables.bsdfs, NAME, head), head[4], Array3f(*head[8:11]),
+                              tables.reflectance(surf, active),
+                              nonlinear.pop() if len(nonlinear) == 1 else head[7] > 0.5, head[5], head[6],
+                              values, surf.material, fields, FIELDS)
 
 
 @lru_cache(maxsize=64)
@@ -83,7 +139,7 @@ def _transmittance(p: RoughPlasticParams, cos: Float, active: Bool) -> Float:
     """T(cos), linearly interpolated in the material's row."""
     x = cos * (TRANSMITTANCE_RES - 1)
     index = dr.minimum(UInt32(x), TRANSMITTANCE_RES - 2)
-    base = p.row * TRANSMITTANCE_RES + index
+    base = p.row * p.stride + p.offset + index
     v0 = dr.gather(Float, p.transmittance, base, active)
     v1 = dr.gather(Float, p.transmittance, base + 1, active)
     return dr.lerp(v0, v1, x - Float(index))
@@ -109,7 +165,7 @@ def sample(p: RoughPlasticParams, wi: Array3f, u1: Float, u2, active: Bool) -> t
     density = pdf(p, wi, wo, active)
     active &= density > 0
     weight = eval(p, wi, wo, active) / density
-    kind = dr.select(specular, UInt32(int(BSDFFlags.GLOSSY_REFLECTION)), UInt32(int(BSDFFlags.DIFFUSE_REFLECTION)))
+    kind = dr.select(specular, UInt32(GLOSSY_REFLECTION), UInt32(DIFFUSE_REFLECTION))
     return BSDFSample(wo, dr.select(active, density, 0.0), Float(1.0), kind), dr.select(active, weight, 0.0)
 
 

@@ -70,6 +70,10 @@ class MaterialTables:
     def has_table(self, kind: str) -> bool:
         return kind in self._tables
 
+    def table(self, kind: str) -> tuple[Float, int]:
+        """The kind's table, flat, and its row length (for fields gathered at a per-lane index)."""
+        return self._tables[kind]
+
     def row(self, kind: str, material: UInt32, active: Bool) -> list[Float]:
         """Each field of the material's row in the kind's table (its module's `table`)."""
         values, fields = self._tables[kind]
