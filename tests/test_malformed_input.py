@@ -182,6 +182,41 @@ def test_png_texture_whose_image_data_fails_its_crc(tmp_path):
     refused(path, "tex.png", "'IDAT' fails its CRC")
 
 
+@pytest.mark.parametrize("cut", [3, 12, 14, 20])
+def test_png_texture_cut_short_as_libpng(tmp_path, cut):
+    """A PNG cut inside its image data is refused as libpng (Mitsuba) refuses it, where Pillow may decode it
+    (found by the fuzzer); one cut after its image data (in IEND) is read, as Mitsuba reads it."""
+    data = (ROOT / "mitsuba_scenes" / "textures" / "tiles.png").read_bytes()
+    (tmp_path / "tex.png").write_bytes(data[:-cut])
+    path = write_scene(tmp_path, '<shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap" '
+                                 'name="reflectance"><string name="filename" value="tex.png"/></texture></bsdf></shape>')
+    if cut <= 12:
+        assert load_scene(path) and not mitsuba_refuses(path)
+    else:
+        refused(path, "tex.png", "truncated PNG")
+
+
+def test_an_area_emitter_attached_to_two_shapes(tmp_path):
+    path = write_scene(tmp_path, '<emitter type="area" id="lamp"><rgb name="radiance" value="1"/></emitter>'
+                                 '<shape type="rectangle"><ref id="lamp"/></shape>'
+                                 '<shape type="disk"><ref id="lamp"/></shape>')
+    refused(path, "attached to the shape at", '<shape type="disk">')
+
+
+def test_underscores_in_spectra(tmp_path):
+    for value in ("1_0", "400:0.5, 7_00:0.5"):
+        path = write_scene(tmp_path, f'<shape type="sphere"><bsdf type="diffuse"><spectrum name="reflectance" '
+                                     f'value="{value}"/></bsdf></shape>')
+        refused(path, value)
+
+
+def test_a_file_included_twice_says_so(tmp_path):
+    (tmp_path / "part.xml").write_text('<scene version="3.0.0"><bsdf type="diffuse" id="paint"/></scene>')
+    path = write_scene(tmp_path, '<include filename="part.xml"/><include filename="part.xml"/>')
+    (error,) = scene_errors(path)
+    assert "part.xml:1: <bsdf" in error and "(the file is included twice)" in error and mitsuba_refuses(path)
+
+
 def test_too_long_file_name_names_the_element(tmp_path):
     path = mesh_scene(tmp_path, "obj", TRI.encode())
     path.write_text(path.read_text().replace("mesh.obj", "m" * 5000 + ".obj"))

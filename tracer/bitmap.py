@@ -50,20 +50,24 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 def _check_png_chunks(path: Path) -> None:
-    """Refuses a PNG whose critical chunks (IHDR, PLTE, IDAT, IEND) fail their CRC-32 (PNG spec, section 5.3),
-    as libpng (Mitsuba's reader) does by default; Pillow does not check the image data's (IDAT) CRCs."""
+    """Refuses, as libpng (Mitsuba's reader) does by default, a PNG whose critical chunks (IHDR, PLTE, IDAT,
+    IEND) fail their CRC-32 (PNG spec, section 5.3) or that ends before its image data does; Pillow checks
+    neither the image data's CRCs nor, always, its end."""
     import zlib
 
     data = path.read_bytes()
     if not data.startswith(PNG_SIGNATURE):
         return
-    at = len(PNG_SIGNATURE)
+    at, seen = len(PNG_SIGNATURE), set()
     while at + 12 <= len(data):
         length = int.from_bytes(data[at:at + 4], "big")
         kind, body = data[at + 4:at + 8], data[at + 8:at + 8 + length]
         crc = data[at + 8 + length:at + 12 + length]
-        if len(crc) < 4:
-            return                      # truncated: Pillow reports it
+        if len(crc) < 4:             # cut inside this chunk: libpng fails unless the image data was all read
+            if kind == b"IDAT" or b"IDAT" not in seen:
+                break
+            return
+        seen.add(kind)
         critical = kind[:1].isupper()     # an ancillary chunk's bad CRC: libpng warns and skips the chunk
         if critical and zlib.crc32(kind + body).to_bytes(4, "big") != crc:
             raise BitmapError(f"{path}: not a readable image (PNG chunk {kind.decode('latin-1')!r} fails its CRC: "
@@ -71,3 +75,5 @@ def _check_png_chunks(path: Path) -> None:
         if kind == b"IEND":
             return
         at += 12 + length
+    if b"IDAT" not in seen or data[at + 4:at + 8] == b"IDAT":     # cut before or inside the image data
+        raise BitmapError(f"{path}: not a readable image (a truncated PNG: it ends inside its image data)")

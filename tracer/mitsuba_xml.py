@@ -117,6 +117,7 @@ class _Context:
         self.errors: list[str] = []
         self.built: dict[int, object] = {}
         self.includes = 0
+        self.emitter_shapes: dict[int, Node] = {}     # an area emitter's node -> the shape it is attached to
 
     def error(self, node: Node | None, message: str) -> SceneError:
         if node is None:
@@ -380,8 +381,9 @@ def _collect_ids(ctx: _Context, node: Node) -> None:
             name = child.attrib["id"]
             if name in ctx.ids:
                 first = ctx.ids[name]
+                again = " (the file is included twice)" if (first.file, first.line) == (child.file, child.line) else ""
                 ctx.errors.append(str(ctx.error(child, f"duplicate id '{name}' (first declared at "
-                                                       f"{first.file}:{first.line})")))
+                                                       f"{first.file}:{first.line}){again}")))
             else:
                 ctx.ids[name] = child
         if child.tag in PLUGIN_TAGS:      # an object inside a transform operation is no object (Mitsuba ignores it)
@@ -857,6 +859,10 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
     bsdfs = props.children("bsdf")
     if len(emitters) > 1 or len(bsdfs) > 1:
         raise ctx.error(node, "a shape holds at most one bsdf and one emitter")
+    if emitters and ctx.emitter_shapes.setdefault(id(emitters[0]), node) is not node:
+        first = ctx.emitter_shapes[id(emitters[0])]
+        raise ctx.error(node, f"the area emitter '{emitters[0].attrib.get('id', '')}' is attached to the shape at "
+                              f"{first.file}:{first.line} already; an emitter attaches to one shape (as Mitsuba)")
     radiance = ctx.attempt(ctx.built_once, emitters[0], lambda n: _area_light(ctx, n)) if emitters else None
     bsdf = ctx.attempt(ctx.bsdf, bsdfs[0]) if bsdfs else None
     if bsdf is None:  # Mitsuba's default: diffuse 0.5, but black on an emitter shape

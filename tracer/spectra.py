@@ -90,12 +90,19 @@ def d65(wavelengths: np.ndarray) -> np.ndarray:
     return _tabulated(_D65, np.asarray(wavelengths, float)) * D65_NORMALIZATION
 
 
+def _float(text: str) -> float:
+    """A number as Mitsuba parses one (Python's float also reads 1_0 as 10)."""
+    if "_" in text:
+        raise ValueError(text)
+    return float(text)
+
+
 def parse_pairs(text: str) -> tuple[np.ndarray, np.ndarray]:
     """"400:0.5, 500:0.7, ..." as wavelengths and values; wavelengths must increase."""
     try:
         pairs = [item.split(":") for item in text.replace(",", " ").split()]
-        wavelengths = np.array([float(w) for w, _ in pairs])
-        values = np.array([float(v) for _, v in pairs])
+        wavelengths = np.array([_float(w) for w, _ in pairs])
+        values = np.array([_float(v) for _, v in pairs])
     except ValueError:
         raise SpectrumError(f"'{text[:40]}' is not a list of wavelength:value pairs") from None
     if len(wavelengths) < 2:
@@ -128,7 +135,7 @@ def to_rgb(text: str, emitter: bool, unbounded: bool = False) -> np.ndarray:
     above 1."""
     if ":" not in text:
         try:
-            value = float(text)
+            value = _float(text)
         except ValueError:
             raise SpectrumError(f"'{text}' is neither a number nor wavelength:value pairs") from None
         if not np.isfinite(value):

@@ -47,6 +47,7 @@ ASSETS = ("meshes", "textures", "fragments")        # the folders the scenes nam
 CLASSES = ("rendered", "user error", "bug", "crash", "hang", "lost output", "malformed error")
 FAILURES = ("bug", "crash", "hang", "lost output", "malformed error")
 MAX_LINE = 1000
+FILE_LINE = re.compile(r"\S+\.(xml|obj|ply|serialized|exr|png):\d+: ")
 # Rendered mutants that Mitsuba refuses, on purpose (README): (a pattern of Mitsuba's message, why). None yet.
 DELIBERATE: list[tuple[str, str]] = []
 TIMEOUT = 120.0       # seconds a mutant may take (a kernel's compilation is a few)
@@ -311,8 +312,9 @@ def _malformed(stderr: str, m: Mutant, code: int) -> str:
     refusal = lines[start:]
     if any(len(line) > MAX_LINE for line in refusal):
         return f"a line of {max(map(len, refusal))} characters"
-    if not m.args:
-        unnamed = [line for line in refusal if "scene.xml" not in line and m.target not in line]
+    if not m.args:                  # each line names the scene, the mutated file, or a file and line (an include's)
+        unnamed = [line for line in refusal if "scene.xml" not in line and m.target not in line
+                   and not FILE_LINE.search(line)]
         if unnamed:
             return f"a refusal naming neither the scene nor {m.target}: {unnamed[0][:200]}"
     return ""
