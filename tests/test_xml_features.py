@@ -91,8 +91,9 @@ def test_top_level_emitter_and_sampler_referenced(tmp_path):
     path = write_scene(tmp_path, """
     <sampler type="independent" id="smp"><integer name="sample_count" value="7"/></sampler>
     <emitter type="area" id="lamp"><rgb name="radiance" value="3, 2, 1"/></emitter>
+    <emitter type="area" id="lamp2"><rgb name="radiance" value="3, 2, 1"/></emitter>
     <shape type="rectangle"><ref id="lamp"/></shape>
-    <shape type="rectangle"><ref name="emitter" id="lamp"/></shape>""", header=header)
+    <shape type="rectangle"><ref name="emitter" id="lamp2"/></shape>""", header=header)   # one shape each, as Mitsuba
     s = load_scene(path)
     assert s.spp == 7
     assert [r.radiance for r in s.emitters] == [(3.0, 2.0, 1.0)] * 2
