@@ -328,6 +328,15 @@ def test_an_object_inside_a_transform_operation_is_no_object(tmp_path):
     refused(path, "no object with id 'red'")
 
 
+def test_a_default_inside_a_transform_operation_declares_nothing(tmp_path):
+    """Mitsuba ignores what a <lookat> or <translate> holds: a <default> there leaves its parameter undeclared
+    (found by the fuzzer: the tracer declared it)."""
+    path = write_scene(tmp_path, '<shape type="sphere"><transform name="to_world"><translate x="1">'
+                                 '<default name="r" value="2"/></translate></transform>'
+                                 '<float name="radius" value="$r"/></shape>')
+    refused(path, "$r is used before a <default> declares it")
+
+
 def test_unexpected_attribute(tmp_path):
     path = write_scene(tmp_path, '<shape type="sphere"><float name="radius" value="1" foo="2"/></shape>')
     refused(path, "unexpected attribute 'foo'")

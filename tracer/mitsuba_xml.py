@@ -275,7 +275,8 @@ def _expand(ctx: _Context, node: Node, resolver: list[Path], depth: int, top: bo
             children += ctx.attempt(_include, ctx, child, node, resolver, depth, default=[])
         else:
             _check_declared(ctx, child)
-            _expand(ctx, child, resolver, depth, top=False)
+            if child.tag not in TRANSFORM_OPS:      # what a transform operation holds Mitsuba ignores, <default> too
+                _expand(ctx, child, resolver, depth, top=False)
             children.append(child)
     node.children = children
 
