@@ -41,7 +41,8 @@ MAX_LANES = 1 << 32         # lanes of one Dr.Jit array (32-bit indices)
 IMAGE_BYTES = 12            # per pixel of a developed image: float32 RGB
 DEVELOP_MULTIPLE = 3.0      # film (16 bytes per pixel) and its developing, in developed images (12 bytes)
 PATH_LANE_BYTES = 16        # per path-tracer lane of a launch in one kernel (measured about 7)
-WAVEFRONT_LANE_BYTES = 512  # per path-tracer lane of a launch bounce by bounce (measured about 420)
+WAVEFRONT_LANE_BYTES = 640  # per path-tracer lane of a launch bounce by bounce (measured 520 after 3 launches,
+                            # 600 over 42 of mitsuba-data's glass scene: it settles within about 20 launches)
 WAVE_LANE_BYTES = 192       # per ray of a report-estimator level: ray, weight, hit surface (measured about 150)
 SPAWN_LANE_BYTES = 16       # per possible child of a level (a spawned one takes its mark and parent rank)
 PROCESS_BYTES = 120 << 20   # the interpreter and libraries with the kernels compiled (measured 112 MiB)
