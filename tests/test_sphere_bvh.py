@@ -15,7 +15,7 @@ from tracer.rendering import render
 ROOM = """<scene version="3.0.0">
 <sensor type="perspective"><float name="fov" value="40"/>
   <transform name="to_world"><lookat origin="0, 0, 3.9" target="0, 0, 0" up="0, 1, 0"/></transform>
-  <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="24"/></film></sensor>
+  <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="24"/><rfilter type="box"/></film></sensor>
 <bsdf type="diffuse" id="white"><rgb name="reflectance" value="0.8"/></bsdf>
 <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="-90"/><translate y="-1"/></transform><ref id="white"/></shape>
 <shape type="rectangle"><transform name="to_world"><translate z="-1"/></transform><ref id="white"/></shape>
