@@ -94,7 +94,7 @@ def survey(root: Path, check_scenes: bool = True) -> list[SceneOutcome]:
         if out.tracer == "loads" and out.mitsuba == "loads" and check_scenes:
             try:
                 result = check(path, TracerRenderer("path"), settings=Settings(spp=SPP, max_spp=MAX_SPP))
-                out.verdict, out.line = result.verdict, result.line()
+                out.verdict, out.line = result.verdict, relative_to(result.line(), root)
             except (tracer.SceneError, UserError) as e:
                 out.verdict = f"error: {str(e).splitlines()[0][:150]}"
         out.seconds = time.perf_counter() - start
