@@ -46,8 +46,6 @@ def test_parameters_are_read_as_mitsuba_reads_them(tmp_path):
     ('<bsdf type="roughconductor"><float name="alpha_u" value="0.2"/></bsdf>', "both alpha_u and alpha_v"),
     ('<bsdf type="roughdielectric"><float name="alpha" value="0.2"/><float name="alpha_u" value="0.2"/>'
      '<float name="alpha_v" value="0.2"/></bsdf>', "either alpha or alpha_u"),
-    ('<bsdf type="roughconductor"><float name="alpha_u" value="0.2"/><float name="alpha_v" value="0.1"/></bsdf>',
-     "anisotropic roughness"),
     ('<bsdf type="roughplastic"><float name="alpha_u" value="0.2"/><float name="alpha_v" value="0.1"/></bsdf>',
      "nor by Mitsuba"),
     ('<bsdf type="roughdielectric"><float name="int_ior" value="1.2"/><float name="ext_ior" value="1.2"/></bsdf>',

@@ -50,6 +50,7 @@ class Surface:
     prim: UInt32
     valid: Bool
     uv: tuple[Float, Float] | None = None   # texture coordinates, in scenes with textures only
+    dpdu: Array3f | None = None   # the direction of dp/du, in scenes whose materials are oriented only
 
 
 def uses_bvh(scene: Scene) -> bool:
@@ -146,6 +147,8 @@ class SceneGeometry:
         self.prim_frame = Float(frames.ravel())
         if self.materials.textured:
             self.meshes.build_uvs()
+        if self.materials.oriented:
+            self.meshes.build_tangents()
 
     def _set(self, cls: type) -> ShapeSet:
         return next(s for s in self.shape_sets if isinstance(s, cls))
@@ -276,7 +279,12 @@ class SceneGeometry:
             uv = (Float(0.0), Float(0.0))
             for shapes in self.shape_sets:
                 uv = shapes.uv(prim, valid, hit.p, hit.b1, hit.b2, uv)
-        return Surface(hit.p, n, ns, material, dr.select(valid, hit.prim, NO_PRIM), valid, uv)
+        dpdu = None
+        if self.materials.oriented:
+            dpdu = Array3f(0.0)
+            for shapes in self.shape_sets:
+                dpdu = shapes.tangent(prim, valid, hit.p, hit.b1, hit.b2, dpdu)
+        return Surface(hit.p, n, ns, material, dr.select(valid, hit.prim, NO_PRIM), valid, uv, dpdu)
 
     # ---- lights -----------------------------------------------------------------------------------
     def emitted(self, surf: Surface, wi: Array3f) -> Array3f:

@@ -77,6 +77,8 @@ def trace_level(geo: SceneGeometry, wave: Wavefront, vertex: int, max_depth: int
     dr.eval(radiance, surf.p, surf.n, surf.ns, surf.prim, surf.material, at.kind, at.lit, at.smooth, at.delta)
     if surf.uv is not None:
         dr.eval(surf.uv)
+    if surf.dpdu is not None:
+        dr.eval(surf.dpdu)
     rays = len(wave)
     if geo.has_lights and any(KINDS[code].FLAGS & SMOOTH for code in geo.materials.kinds):
         rays += _shadow_rays(geo, surf, at.smooth, wave, settings.direct, radiance, seed)
@@ -89,9 +91,10 @@ def _rng(n: int, seed: int, stream: int) -> PCG32:
 
 def _gather_surface(surf: Surface, lane: UInt32) -> Surface:
     uv = None if surf.uv is None else tuple(dr.gather(Float, c, lane) for c in surf.uv)
+    dpdu = None if surf.dpdu is None else dr.gather(Array3f, surf.dpdu, lane)
     return Surface(dr.gather(Array3f, surf.p, lane), dr.gather(Array3f, surf.n, lane),
                    dr.gather(Array3f, surf.ns, lane), dr.gather(UInt32, surf.material, lane),
-                   dr.gather(UInt32, surf.prim, lane), Bool(True), uv)
+                   dr.gather(UInt32, surf.prim, lane), Bool(True), uv, dpdu)
 
 
 def _shadow_rays(geo, surf, smooth, wave, n_direct, radiance, seed) -> int:

@@ -33,7 +33,7 @@ class SurfaceBSDF:
 
     def __init__(self, tables, surf, wi: Array3f, active: Bool):
         self.n = surf.ns
-        self.s, self.t = coordinate_system(self.n)
+        self.s, self.t = shading_tangents(self.n, surf.dpdu)
         wi = self._local(wi)
         self.opacity = tables.opacity(surf.material, active) if tables.any_mask else None   # the mask's own
         self.flip = None                   # lanes on the back of a two-sided material (None: no such material)
@@ -154,6 +154,16 @@ class SurfaceBSDF:
             if hasattr(module, "albedo"):
                 out = dr.select(active & (self.kind == code), module.albedo(self.params[code]), out)
         return out
+
+
+def shading_tangents(n: Array3f, dpdu: Array3f | None) -> tuple[Array3f, Array3f]:
+    """The shading frame's tangents about the shading normal n: Mitsuba's (its SurfaceInteraction's
+    sh_frame), dp/du made orthogonal to n (Gram-Schmidt), then n x s; without dpdu (a scene whose materials
+    are all invariant under rotation about the normal) any frame: Duff et al.'s about n."""
+    if dpdu is None:
+        return coordinate_system(n)
+    s = dr.normalize(dpdu - n * dr.dot(n, dpdu))
+    return s, dr.cross(n, s)
 
 
 def split_count(code: int) -> int:

@@ -29,9 +29,9 @@ def read_microfacet(ctx, props, node, anisotropic: bool = True) -> dict:
     """A microfacet distribution's parameters as Mitsuba reads them: `distribution` (beckmann by default),
     `alpha` (0.1) or both `alpha_u` and `alpha_v`, `sample_visible` (true). Refuses what Mitsuba refuses
     (only one of alpha_u / alpha_v, alpha with them, another distribution, negative roughness) and
-    alpha_u != alpha_v: Mitsuba refuses it where not `anisotropic` (roughplastic); elsewhere the kernels
-    handle it (materials.microfacet) but the shading frame would not orient it as Mitsuba does. A roughness
-    given by a texture is left unread, so the loader refuses it by name."""
+    alpha_u != alpha_v where not `anisotropic` (roughplastic). alpha_u runs along the shading frame's first
+    tangent, the surface's dp/du (materials.dispatch.shading_tangents). A roughness given by a texture is
+    left unread, so the loader refuses it by name."""
     distribution = props.get("distribution", "beckmann", ("string",)).lower()
     if distribution not in DISTRIBUTIONS:
         raise ctx.error(props.values["distribution"], f"invalid distribution '{distribution}': must be "
@@ -47,11 +47,9 @@ def read_microfacet(ctx, props, node, anisotropic: bool = True) -> dict:
         alpha_u = alpha_v = float(props.get("alpha", 0.1, ("float", "integer")))
     if min(alpha_u, alpha_v) < 0:
         raise ctx.error(node, f"roughness must not be negative, got alpha_u = {alpha_u}, alpha_v = {alpha_v}")
-    if alpha_u != alpha_v:
-        why = ("nor by Mitsuba" if not anisotropic else "yet: the tracer's shading frames do not follow Mitsuba's "
-               "surface tangents (dp/du), which orient alpha_u")
+    if alpha_u != alpha_v and not anisotropic:
         raise ctx.error(node, f"anisotropic roughness (alpha_u = {alpha_u}, alpha_v = {alpha_v}) is not "
-                              f"supported by '{props.kind}' ({why})")
+                              f"supported by '{props.kind}' (nor by Mitsuba)")
     visible = props.get("sample_visible", True, ("boolean",))
     return dict(distribution=distribution, alpha_u=alpha_u, alpha_v=alpha_v, sample_visible=bool(visible))
 

@@ -23,6 +23,9 @@ class MaterialTables:
         self.kinds = {KIND_CODE[b.kind] for b in bsdfs} if kinds is None else set(kinds)
         self.textured = any(b.texture is not None for b in bsdfs)
         self.any_twosided = any(b.twosided for b in bsdfs)
+        # whether a material is not invariant under rotation about the normal: then the shading frame
+        # follows the surface's dp/du as Mitsuba's; elsewhere any frame about the normal gives the same image
+        self.oriented = any(getattr(b, "alpha_u", None) != getattr(b, "alpha_v", None) for b in bsdfs)
         rows = bsdfs or [BSDF("diffuse", (0.0, 0.0, 0.0))]   # an empty scene still gathers (masked off)
         self._reflectance = Float(np.array([b.reflectance for b in rows]).ravel())
         self._kind = UInt32([KIND_CODE[b.kind] for b in rows])

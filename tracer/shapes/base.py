@@ -103,6 +103,12 @@ class ShapeSet:
         Mitsuba's shape of the kind computes them (`uv` elsewhere); only traced in scenes with textures."""
         return uv
 
+    def tangent(self, prim: UInt32, valid, p: Array3f, b1: Float, b2: Float, dpdu: Array3f) -> Array3f:
+        """The direction of the surface's dp/du at the hit where prim is one of the set's (dpdu elsewhere), as
+        Mitsuba's shape of the kind computes it (its length may differ): it orients the shading frame's first
+        tangent (anisotropic roughness follows it). Only traced in scenes whose materials depend on it."""
+        return dpdu
+
     def sample(self, shape, lo: int, u1: Float, u2: Float, geo) -> tuple[Array3f, Array3f, UInt32]:
         """A point uniform in area on an emitting `shape` (primitives from lo): (point, normal, primitive)."""
         raise NotImplementedError(f"{type(shape).__name__} shapes do not emit")

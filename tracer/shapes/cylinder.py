@@ -136,6 +136,17 @@ class CylinderSet(ShapeSet):
             u, v = dr.select(here, phi * (0.5 / dr.pi), u), dr.select(here, z, v)
         return u, v
 
+    def tangent(self, prim, valid, p, b1, b2, dpdu):
+        """Mitsuba's dp/du: along phi, the local (-y, x, 0) in world space."""
+        for k, c in enumerate(self.shapes):
+            m = np.linalg.inv(c.to_world)
+            x, y = (p.x * float(m[r, 0]) + p.y * float(m[r, 1]) + p.z * float(m[r, 2]) + float(m[r, 3])
+                    for r in range(2))
+            w = c.to_world
+            along = Array3f(*(float(w[j, 1]) * x - float(w[j, 0]) * y for j in range(3)))
+            dpdu = dr.select(prim == self.base + k, along, dpdu)
+        return dpdu
+
 
 def _radial_normal(c: Cylinder, p: Array3f) -> Array3f:
     """The tube's normal at p: the local radial direction (x, y, 0) taken to world space as a normal, outward

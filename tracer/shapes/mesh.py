@@ -176,6 +176,7 @@ class MeshSet(ShapeSet):
         self.bvh = self._bvh(source) if self.uses_bvh(self.count, bvh_threshold) else None
         self.corner_normals = Float(self._corner_normals().ravel())
         self.corner_uvs = None
+        self.tangents = None
         self._emitter_tables: dict[int, tuple[Float, Float]] = {}
 
     @staticmethod
@@ -248,6 +249,33 @@ class MeshSet(ShapeSet):
         for m, lo, n in self.shape_primitives():
             uvs[lo - self.base:lo - self.base + n] = m.uvs[m.faces] if m.uvs is not None else [[0, 0], [1, 0], [0, 1]]
         self.corner_uvs = Float(uvs.ravel())
+
+    def build_tangents(self) -> None:
+        """Per triangle dp/du as Mitsuba's mesh computes it: from the corners' texture coordinates (the
+        edges p1 - p0, p2 - p0 against the uv edges), p1 - p0 where the mesh has none, and the first tangent
+        of Mitsuba's coordinate system around the face normal where the uv edges are degenerate; for scenes
+        whose materials depend on it."""
+        out = np.zeros((max(self.count, 1), 3))
+        for m, lo, n in self.shape_primitives():
+            c = m.vertices[m.faces].astype(np.float64)
+            dp0, dp1 = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]
+            tri = slice(lo - self.base, lo - self.base + n)
+            if m.uvs is None:
+                out[tri] = dp0
+                continue
+            uv = m.uvs[m.faces].astype(np.float64)
+            duv0, duv1 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+            det = duv0[:, 0] * duv1[:, 1] - duv0[:, 1] * duv1[:, 0]
+            ok = det != 0
+            dpdu = (duv1[:, 1, None] * dp0 - duv0[:, 1, None] * dp1) / np.where(ok, det, 1.0)[:, None]
+            out[tri] = np.where(ok[:, None], dpdu, coordinate_system_rows(self.normals()[tri]))
+        self.tangents = Float(out.astype(HOST_FLOAT).ravel())
+
+    def tangent(self, prim, valid, p, b1, b2, dpdu):
+        if not self.count:
+            return dpdu
+        tri, is_tri = self._triangle(prim, valid)
+        return dr.select(is_tri, dr.gather(Array3f, self.tangents, tri, is_tri), dpdu)
 
     def frames(self) -> np.ndarray:
         return self._frames_normals[0]
@@ -343,3 +371,10 @@ class MeshSet(ShapeSet):
             cn = [dr.gather(Array3f, self.corner_normals, (prim - self.base) * 3 + c) for c in range(3)]
             n = dr.normalize(cn[0] * (1.0 - b1 - b2) + cn[1] * b1 + cn[2] * b2)
         return y, n, prim
+
+
+def coordinate_system_rows(n: np.ndarray) -> np.ndarray:
+    """(rows, 3) the first tangent of sampling.coordinate_system (Duff et al. 2017) for unit normals n."""
+    sign = np.where(n[:, 2] >= 0, 1.0, -1.0)
+    a = -1.0 / (sign + n[:, 2])
+    return np.stack([1.0 + sign * n[:, 0] * n[:, 0] * a, sign * n[:, 0] * n[:, 1] * a, -sign * n[:, 0]], axis=1)

@@ -134,6 +134,13 @@ class RectangleSet(ShapeSet):
             v = dr.select(is_disk, dr.select(turn < 0, turn + 1.0, turn), v)
         return dr.select(mine, u, uv[0]), dr.select(mine, v, uv[1])
 
+    def tangent(self, prim, valid, p, b1, b2, dpdu):
+        """Mitsuba's dp/du: a rectangle's local x axis; a disk's radial direction (local (x, y, 0))."""
+        for k, r in enumerate(self.shapes):
+            e1, e2 = (vec3(e) for e in r.edges)
+            dpdu = dr.select(prim == self.base + k, dr.fma(e1, b1, e2 * b2) if r.disk else e1, dpdu)
+        return dpdu
+
     def sample(self, r: Rectangle, lo: int, u1: Float, u2: Float, geo) -> tuple[Array3f, Array3f, UInt32]:
         e1, e2 = r.edges
         a, b = square_to_uniform_disk_concentric(u1, u2) if r.disk else (2.0 * u1 - 1.0, 2.0 * u2 - 1.0)

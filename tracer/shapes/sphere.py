@@ -151,6 +151,21 @@ class SphereSet(ShapeSet):
         [0, 2 pi) from local +x towards +y, theta from local +z."""
         if not self.shapes:
             return uv
+        is_sphere, (x, y, z), _ = self._local(prim, valid, p)
+        phi = dr.atan2(y, x)
+        phi = dr.select(phi < 0, phi + 2.0 * dr.pi, phi)
+        theta = dr.acos(dr.clip(z * dr.rsqrt(dr.fma(x, x, dr.fma(y, y, z * z))), -1.0, 1.0))
+        return dr.select(is_sphere, phi * (0.5 / dr.pi), uv[0]), dr.select(is_sphere, theta / dr.pi, uv[1])
+
+    def tangent(self, prim, valid, p, b1, b2, dpdu):
+        """Mitsuba's dp/du: along phi, the local (-y, x, 0) in world space."""
+        if not self.shapes:
+            return dpdu
+        is_sphere, (x, y, _), axes = self._local(prim, valid, p)
+        return dr.select(is_sphere, axes[1] * x - axes[0] * y, dpdu)
+
+    def _local(self, prim, valid, p) -> tuple[Bool, tuple[Float, Float, Float], list[Array3f]]:
+        """(lanes on one of the set's spheres, p in its local frame, the frame's axes in world space)."""
         is_sphere = (prim >= self.base) & (prim < self.base + self.count)
         if self.bvh is not None:
             k = prim - self.base
@@ -162,11 +177,7 @@ class SphereSet(ShapeSet):
                 here = prim == self.base + k
                 center = dr.select(here, vec3(s.center), center)
                 axes = [dr.select(here, vec3(a), b) for a, b in zip(s.frame.T, axes)]
-        x, y, z = (dr.dot(p - center, a) for a in axes)
-        phi = dr.atan2(y, x)
-        phi = dr.select(phi < 0, phi + 2.0 * dr.pi, phi)
-        theta = dr.acos(dr.clip(z * dr.rsqrt(dr.fma(x, x, dr.fma(y, y, z * z))), -1.0, 1.0))
-        return dr.select(is_sphere, phi * (0.5 / dr.pi), uv[0]), dr.select(is_sphere, theta / dr.pi, uv[1])
+        return is_sphere, tuple(dr.dot(p - center, a) for a in axes), axes
 
     def sample(self, s: Sphere, lo: int, u1: Float, u2: Float, geo) -> tuple[Array3f, Array3f, UInt32]:
         n = square_to_uniform_sphere(u1, u2)
