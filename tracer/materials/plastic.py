@@ -18,6 +18,15 @@ FIELDS = 8
 
 
 def from_xml(ctx, props, node) -> BSDF:
+    layers = read_layers(ctx, props, node)
+    if min(layers["int_ior"], layers["ext_ior"]) <= 0:
+        raise ctx.error(node, "indices of refraction must be positive")
+    return BSDF(NAME, **layers)
+
+
+def read_layers(ctx, props, node) -> dict:
+    """The parameters smooth and rough plastic share (IORs, the base's and the coating's reflectances,
+    `nonlinear`), read and checked, as BSDF's fields; finishes `props`."""
     ior = {k: read_ior(ctx, props, k, d) for k, d in (("int_ior", "polypropylene"), ("ext_ior", "air"))}
     rho, spec = props.colour("diffuse_reflectance", 0.5, textured=True), props.colour("specular_reflectance", 1.0)
     nonlinear = props.get("nonlinear", False, ("boolean",))
@@ -27,9 +36,7 @@ def from_xml(ctx, props, node) -> BSDF:
         rho = np.full(3, 0.5)
     for name, value in (("diffuse_reflectance", rho), ("specular_reflectance", spec)):
         check_unit_interval(ctx, node, name, value)
-    if min(ior.values()) <= 0:
-        raise ctx.error(node, "indices of refraction must be positive")
-    return BSDF("plastic", rgb(rho), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"], specular_reflectance=rgb(spec),
+    return dict(reflectance=rgb(rho), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"], specular_reflectance=rgb(spec),
                 nonlinear=bool(nonlinear), texture=texture)
 
 

@@ -24,12 +24,12 @@ import numpy as np
 
 from ..jit import Array3f, Bool, Float, UInt32
 from ..sampling import square_to_uniform_disk_concentric
-from ..spectra import rgb
 from . import microfacet as mf
+from . import plastic
 from .bsdf import BSDF, DIFFUSE_REFLECTION, GLOSSY_REFLECTION, BSDFSample
 from .fresnel import reflect
 from .microfacet import Microfacet, microfacet, pick
-from .reading import check_unit_interval, read_ior, read_microfacet
+from .reading import read_microfacet
 from .roughdielectric import fresnel, refract
 
 NAME, FLAGS = "roughplastic", GLOSSY_REFLECTION | DIFFUSE_REFLECTION
@@ -56,21 +56,11 @@ class RoughPlasticParams:
 
 def from_xml(ctx, props, node) -> BSDF:
     distribution = read_microfacet(ctx, props, node, anisotropic=False)
-    ior = {k: read_ior(ctx, props, k, d) for k, d in (("int_ior", "polypropylene"), ("ext_ior", "air"))}
-    rho = props.colour("diffuse_reflectance", 0.5, textured=True)
-    spec = props.colour("specular_reflectance", 1.0)
-    nonlinear = props.get("nonlinear", False, ("boolean",))
-    props.finish()
-    texture = None if isinstance(rho, np.ndarray) else rho
-    if texture is not None:     # its mean steers only which lobe is sampled, not the estimate
-        rho = np.full(3, 0.5)
-    for name, value in (("diffuse_reflectance", rho), ("specular_reflectance", spec)):
-        check_unit_interval(ctx, node, name, value)
-    if min(ior.values()) < 0 or ior["int_ior"] == ior["ext_ior"]:
+    layers = plastic.read_layers(ctx, props, node)
+    if min(layers["int_ior"], layers["ext_ior"]) < 0 or layers["int_ior"] == layers["ext_ior"]:
         raise ctx.error(node, "the interior and exterior indices of refraction must be positive and differ "
-                              f"(as in Mitsuba), got {ior['int_ior']} and {ior['ext_ior']}")
-    return BSDF(NAME, rgb(rho), int_ior=ior["int_ior"], ext_ior=ior["ext_ior"], specular_reflectance=rgb(spec),
-                nonlinear=bool(nonlinear), texture=texture, **distribution)
+                              f"(as in Mitsuba), got {layers['int_ior']} and {layers['ext_ior']}")
+    return BSDF(NAME, **layers, **distribution)
 
 
 def table(bsdfs: list[BSDF]) -> np.ndarray:
