@@ -24,7 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 GRUBBS_ALPHA = 0.01   # level of the per-side outlier test that marks a block as untrusted
 MIN_NONZERO = 4       # a block's mean must rest on at least this many non-black passes of each side
@@ -142,9 +142,20 @@ def _percent(x: float) -> str:
     return "inf" if not np.isfinite(x) else f"{100 * x:.2g}%" if x < 0.1 else f"{100 * x:.0f}%"
 
 
+def _t_sf(x, df):
+    """Student's t survival function, from scipy.special (scipy.stats takes about a second to import, most of
+    a refused check's time)."""
+    return special.stdtr(df, -x)
+
+
+def _t_isf(q, df):
+    """Student's t inverse survival function (see _t_sf)."""
+    return -special.stdtrit(df, q)
+
+
 def grubbs_critical(k: int, alpha: float = GRUBBS_ALPHA) -> float:
     """Two-sided critical value of Grubbs' outlier statistic max|x - mean| / s for k normal samples."""
-    t = stats.t.isf(alpha / (2 * k), k - 2)
+    t = _t_isf(alpha / (2 * k), k - 2)
     return (k - 1) / np.sqrt(k) * np.sqrt(t * t / (k - 2 + t * t))
 
 
@@ -193,7 +204,7 @@ def _welch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     diff = ma - mb
     with np.errstate(divide="ignore", invalid="ignore"):
         t = diff / se
-        p = 2 * stats.t.sf(np.abs(t), df)
+        p = 2 * _t_sf(np.abs(t), df)
     exact = se == 0
     equal = resolved(diff, ma, mb) == 0
     return np.where(exact, np.where(equal, 0.0, np.inf), t), np.where(exact, np.where(equal, 1.0, 0.0), p)
@@ -205,7 +216,7 @@ def detectable_bias(se: np.ndarray, df: np.ndarray, level: float) -> np.ndarray:
     power of a t-test, e.g. Cohen 1988, ch. 2; GUIDE section 7), on the Welch degrees of freedom; 0 where
     neither side varies."""
     with np.errstate(invalid="ignore"):
-        q = stats.t.isf(level / 2, df) + stats.t.isf(1 - POWER, df)
+        q = _t_isf(level / 2, df) + _t_isf(1 - POWER, df)
     return np.where(se > 0, q * se, 0.0)
 
 
@@ -215,7 +226,7 @@ def tost(diff: np.ndarray, se: np.ndarray, df: np.ndarray, delta: np.ndarray, le
     rejected at `level`, i.e. |diff| + t_{1 - level} se < delta. Where neither side varies, `exact` (the
     difference is below float resolution) or |diff| < delta decides."""
     with np.errstate(invalid="ignore"):
-        bound = np.abs(diff) + stats.t.isf(level, df) * se
+        bound = np.abs(diff) + _t_isf(level, df) * se
     return np.where(se > 0, bound < delta, exact | (np.abs(diff) < delta))
 
 
@@ -231,7 +242,7 @@ def samples_needed(diff: np.ndarray, se: np.ndarray, df: np.ndarray, delta: np.n
     if (room <= 0).any():
         return float("inf")
     with np.errstate(invalid="ignore"):
-        q = np.nan_to_num(stats.t.isf(level, df[todo]), nan=stats.norm.isf(level))
+        q = np.nan_to_num(_t_isf(level, df[todo]), nan=-special.ndtri(level))
     return float(max(1.0, np.max((q * se[todo] / room) ** 2)))
 
 
