@@ -43,7 +43,7 @@ def test_a_textured_opacity_is_refused(tmp_path):
 def test_report_estimator_refuses_a_masked_dielectric(tmp_path):
     path = write_scene(tmp_path, '<shape type="rectangle"><bsdf type="mask"><bsdf type="dielectric"/></bsdf></shape>')
     (line,) = tracer.load_scene(path).estimator_refusals("report")
-    assert "'mask' around 'dielectric'" in line
+    assert "'mask' of 'dielectric'" in line
 
 
 @pytest.mark.slow

@@ -71,7 +71,7 @@ VALUES = {
     "irradiance": '<rgb name="irradiance" value="2, 3, 4"/>', "data": '<ref name="data" id="nothing"/>',
     "raw": '<boolean name="raw" value="true"/>', "filter_type": '<string name="filter_type" value="nearest"/>',
     "wrap_mode": '<string name="wrap_mode" value="clamp"/>', "format": '<string name="format" value="fp16"/>',
-    "opacity": '<float name="opacity" value="0.3"/>',
+    "opacity": '<float name="opacity" value="0.3"/>', "weight": '<float name="weight" value="0.3"/>',
     "accel": '<boolean name="accel" value="false"/>', "texture": '<texture type="checkerboard" name="texture"/>', "intensity": '<rgb name="intensity" value="2, 3, 4"/>',
 }
 HONOURED = "honoured"
@@ -96,7 +96,7 @@ EXPECTED = {
              "k": HONOURED, "specular_reflectance": HONOURED, "specular_transmittance": REFUSED, "int_ior": HONOURED,
              "ext_ior": HONOURED, "nonlinear": HONOURED, "diffuse_reflectance": HONOURED, "opacity": HONOURED,
              "distribution": HONOURED, "alpha": HONOURED, "alpha_u": REFUSED, "alpha_v": REFUSED,
-             "sample_visible": HONOURED},
+             "sample_visible": HONOURED, "weight": HONOURED},
     "texture": {"color0": HONOURED, "color1": HONOURED, "to_uv": HONOURED, "filename": HONOURED, "bitmap": REFUSED,
                 "data": REFUSED, "raw": HONOURED, "filter_type": HONOURED, "wrap_mode": HONOURED, "format": REFUSED,
                 "accel": NO_EFFECT},
@@ -145,7 +145,8 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
             p += f'<string name="filename" value="{name}"/>'
         body = f'<shape type="{kind}">{p}</shape>'
     elif tag == "bsdf":
-        inner = '<bsdf type="diffuse"/>' if kind in ("twosided", "mask") else ""
+        inner = {"twosided": '<bsdf type="diffuse"/>', "mask": '<bsdf type="diffuse"/>',
+                 "blendbsdf": '<bsdf type="diffuse"/><bsdf type="conductor"/>'}.get(kind, "")
         body = f'<shape type="rectangle"><bsdf type="{kind}">{inner}{p}</bsdf></shape>'
     elif tag == "texture":
         if kind == "bitmap":

@@ -118,10 +118,14 @@ class Scene:
                        "use --estimator path")
         if estimator == "report" and any(b.kind == "plastic" for b in self.bsdfs):
             out.append(f"{self.path}: the report estimator does not render the 'plastic' bsdf; use --estimator path")
-        split = [b.kind for b in self.bsdfs if b.opacity < 1 and b.kind in ("dielectric", "thindielectric")]
-        if estimator == "report" and split:
-            out.append(f"{self.path}: the report estimator does not render a 'mask' around '{split[0]}'; "
-                       "use --estimator path")
+        split = ("dielectric", "thindielectric")
+        for b in self.bsdfs:
+            kinds = [b.kind] + ([b.blend[1].kind] if b.blend is not None else [])
+            wrapper = "blendbsdf" if b.blend is not None else "mask" if b.opacity < 1 else None
+            if estimator == "report" and wrapper and any(k in split for k in kinds):
+                out.append(f"{self.path}: the report estimator does not render a '{wrapper}' of "
+                           f"'{next(k for k in kinds if k in split)}'; use --estimator path")
+                break
         if estimator == "report" and any(b.texture is not None for b in self.bsdfs):
             out.append(f"{self.path}: the report estimator does not render textures (checkerboard, bitmap); "
                        "use --estimator path")

@@ -140,14 +140,14 @@ def _child_counts(geo, at: Vertices, vertex: int, max_depth: int, settings: Bran
     """Children each vertex spawns: M where its BSDF has a non-delta lobe (while they can still reach a
     light within max_depth, or see one through a delta lobe), the listed lobes of a kind that splits (two
     at glass), one elsewhere (a mirror's front), none where the ray left the scene or the BSDF is black.
-    A split kind under a `mask` is refused by Scene.estimator_refusals."""
-    count = UInt32(0)
+    A split kind under a `mask` or in a `blendbsdf` is refused by Scene.estimator_refusals."""
+    count = UInt32(1)
     for code in sorted(geo.materials.kinds):
-        n = UInt32(split_count(code) or 1)
-        if KINDS[code].FLAGS & SMOOTH:
-            n = UInt32(settings.indirect) if vertex + 2 <= max_depth else dr.select(at.delta, settings.indirect, 0)
-        count = dr.select((at.kind == code) & at.lit, n, count)
-    return dr.select(at.surf.prim != NO_PRIM, count, 0)
+        if split_count(code):
+            count = dr.select(at.kind == code, split_count(code), count)
+    m = UInt32(settings.indirect) if vertex + 2 <= max_depth else dr.select(at.delta, settings.indirect, 0)
+    count = dr.select(at.smooth, m, count)
+    return dr.select((at.surf.prim != NO_PRIM) & at.lit, count, 0)
 
 
 def _children(count: UInt32) -> tuple[UInt32, UInt32]:

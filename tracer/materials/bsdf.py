@@ -135,6 +135,7 @@ class BSDF:
     sample_visible: bool = True
     back: BSDF | None = None        # a two-sided material's back, where it differs from the front (this BSDF)
     opacity: float = 1.0            # a `mask`: the probability of scattering by this BSDF (else the ray passes)
+    blend: tuple[float, BSDF] | None = None   # a `blendbsdf`: (w, the second material); f = (1 - w) f + w f2
 
     @property
     def perfect_mirror(self) -> bool:

@@ -13,20 +13,92 @@ from ..jit import Array2f, Array3f, Bool, Float, UInt32
 from ..sampling import coordinate_system
 from . import (conductor, dielectric, diffuse, null, plastic, roughconductor, roughdielectric, roughplastic,
                thindielectric)
-from .bsdf import DELTA, NULL, SMOOTH, TRANSMISSION, BSDFSample
+from .bsdf import DELTA, NULL, SMOOTH, TRANSMISSION, BSDFSample, has_flag
 
 # a kind's code is its index
 KINDS = (diffuse, conductor, dielectric, plastic, null, thindielectric, roughconductor, roughdielectric, roughplastic)
 KIND_CODE = {module.NAME: code for code, module in enumerate(KINDS)}
 
 
+class _Kinds:
+    """Each lane's kind and its parameters for one material index per lane, in the local frame: the kinds'
+    own functions, selected by kind."""
+
+    def __init__(self, tables, surf, wi: Array3f, active: Bool):
+        self.wi = wi
+        self.kind = tables.kind(surf.material, active)
+        self.kinds = [(code, KINDS[code]) for code in sorted(tables.kinds)]
+        self.params = {code: module.params(tables, surf, active & (self.kind == code))
+                       for code, module in self.kinds}
+
+    def where(self, has) -> Bool:
+        """Lanes whose kind's FLAGS satisfy `has` (static per kind)."""
+        codes = [code for code, module in self.kinds if has(module)]
+        if len(codes) == len(self.kinds):
+            return Bool(True)
+        out = Bool(False)
+        for code in codes:
+            out |= self.kind == code
+        return out
+
+    def _each(self, name: str, *args, smooth_only: bool = False):
+        """(code mask, result) of the named function of every kind carried (only kinds with non-delta lobes
+        where `smooth_only`: the others' eval and pdf are 0)."""
+        for code, module in self.kinds:
+            if smooth_only and not module.FLAGS & SMOOTH:
+                continue
+            mask = self.kind == code
+            yield mask, getattr(module, name)(self.params[code], *args[:-1], args[-1] & mask)
+
+    def eval_pdf(self, wo: Array3f, active: Bool) -> tuple[Array3f, Float]:
+        value, density = Array3f(0.0), Float(0.0)
+        for (mask, f), (_, p) in zip(self._each("eval", self.wi, wo, active, smooth_only=True),
+                                     self._each("pdf", self.wi, wo, active, smooth_only=True)):
+            value, density = dr.select(mask, f, value), dr.select(mask, p, density)
+        return value, density
+
+    def sample(self, u1: Float, u2: Array2f, active: Bool) -> tuple[BSDFSample, Array3f]:
+        out, weight = None, Array3f(0.0)
+        for mask, (bs, w) in self._each("sample", self.wi, u1, u2, active):
+            out = bs if out is None else _select(mask, bs, out)
+            weight = dr.select(mask, w, weight)
+        if out is None:        # a scene without materials
+            return BSDFSample(Array3f(0.0), Float(0.0), Float(1.0), UInt32(0)), weight
+        return out, weight
+
+    def split(self, slot: UInt32, active: Bool) -> tuple[Array3f, Array3f]:
+        wo, weight = Array3f(0.0), Array3f(0.0)
+        for code, module in self.kinds:
+            if not hasattr(module, "split"):
+                continue
+            mask = active & (self.kind == code)
+            for k, (d, w) in enumerate(module.split(self.params[code], self.wi, mask)):
+                chosen = mask & (slot == k)
+                wo, weight = dr.select(chosen, d, wo), dr.select(chosen, w, weight)
+        return wo, weight
+
+    def albedo(self, active: Bool) -> Array3f:
+        out = Array3f(0.0)
+        for code, module in self.kinds:
+            if hasattr(module, "albedo"):
+                out = dr.select(active & (self.kind == code), module.albedo(self.params[code]), out)
+        return out
+
+
+def _select(mask: Bool, a: BSDFSample, b: BSDFSample) -> BSDFSample:
+    return BSDFSample(*(dr.select(mask, x, y) for x, y in zip((a.wo, a.pdf, a.eta, a.sampled_type),
+                                                               (b.wo, b.pdf, b.eta, b.sampled_type))))
+
+
 class SurfaceBSDF:
     """The BSDF of each lane's surface point seen along wi (world space, pointing away from the surface).
 
     Directions in and out are in world space; the kinds see them in the local shading frame (z the shading
-    normal), mirrored through the surface on the back of a two-sided material.
-    A `mask`ed material (opacity < 1) is its BSDF with probability opacity and a null lobe (the ray passes
-    unchanged) otherwise: eval and pdf are scaled by the opacity, as in Mitsuba's `mask`.
+    normal), mirrored through the surface on the back of a two-sided material. A `blendbsdf` is two
+    materials, f = (1 - w) f0 + w f1, sampled by one of them (the second with probability w); a sample from
+    a non-delta lobe reports the mixture's pdf, the density MIS needs. A `mask`ed material (opacity < 1) is
+    its BSDF with probability opacity and a null lobe (the ray passes unchanged) otherwise: eval and pdf are
+    scaled by the opacity, as in Mitsuba's `mask`.
     `smooth`: lanes whose BSDF has a non-delta lobe (next-event estimation applies);
     `delta`: lanes whose BSDF has a delta lobe (a mask's null lobe included);
     `lit`: lanes where the BSDF is not black from wi's side (one-sided kinds without transmission)."""
@@ -43,12 +115,14 @@ class SurfaceBSDF:
             if tables.any_back:
                 surf = replace(surf, material=dr.select(self.flip, tables.back(surf.material, active), surf.material))
         self.wi = wi
-        self.kind = tables.kind(surf.material, active)
-        self.kinds = [(code, KINDS[code]) for code in sorted(tables.kinds)]
-        self.params = {code: module.params(tables, surf, active & (self.kind == code))
-                       for code, module in self.kinds}
-        self.smooth = self.kinds_where(lambda m: m.FLAGS & SMOOTH)
-        self.delta = self.kinds_where(lambda m: m.FLAGS & DELTA)
+        self.parts = [_Kinds(tables, surf, wi, active)]
+        self.blend = None                  # the second material's weight w (None: no blend in the scene)
+        if tables.any_blend:
+            self.blend, second = tables.blend(surf.material, active)
+            self.parts.append(_Kinds(tables, replace(surf, material=second), wi, active))
+        self.kind = self.parts[0].kind
+        self.smooth = self._either(lambda m: m.FLAGS & SMOOTH)
+        self.delta = self._either(lambda m: m.FLAGS & DELTA)
         self.lit = (wi.z > 0) | self.kinds_where(lambda m: m.FLAGS & TRANSMISSION)
         if self.opacity is not None:
             masked = self.opacity < 1.0
@@ -56,17 +130,20 @@ class SurfaceBSDF:
 
     def state(self) -> list:
         """The arrays it holds, for SceneGeometry.keep."""
-        return [self.s, self.t, self.n, self.wi, self.kind, self.flip, self.opacity, self.smooth, self.delta, self.lit,
-                list(self.params.values())]
+        return [self.s, self.t, self.n, self.wi, self.flip, self.opacity, self.blend, self.smooth, self.delta,
+                self.lit, [(part.kind, list(part.params.values())) for part in self.parts]]
 
     def kinds_where(self, has) -> Bool:
-        """Lanes whose kind's FLAGS satisfy `has` (static per kind)."""
-        codes = [code for code, module in self.kinds if has(module)]
-        if len(codes) == len(self.kinds):
-            return Bool(True)
-        out = Bool(False)
-        for code in codes:
-            out |= self.kind == code
+        """Lanes whose kinds' FLAGS (both a blend's) satisfy `has` (static per kind)."""
+        out = self.parts[0].where(has)
+        for part in self.parts[1:]:
+            out &= part.where(has)
+        return out
+
+    def _either(self, has) -> Bool:
+        out = self.parts[0].where(has)
+        for part in self.parts[1:]:
+            out |= part.where(has)
         return out
 
     @property
@@ -86,22 +163,16 @@ class SurfaceBSDF:
         z = dr.select(self.flip, -v.z, v.z) if self.flip is not None else v.z
         return self.s * v.x + self.t * v.y + self.n * z
 
-    def _each(self, name: str, *args, smooth_only: bool = False):
-        """(code mask, result) of the named function of every kind carried (only kinds with non-delta lobes
-        where `smooth_only`: the others' eval and pdf are 0)."""
-        for code, module in self.kinds:
-            if smooth_only and not module.FLAGS & SMOOTH:
-                continue
-            mask = self.kind == code
-            yield mask, getattr(module, name)(self.params[code], *args[:-1], args[-1] & mask)
+    def _eval_pdf_local(self, wo: Array3f, active: Bool) -> tuple[Array3f, Float]:
+        value, density = self.parts[0].eval_pdf(wo, active)
+        if self.blend is not None:
+            v1, p1 = self.parts[1].eval_pdf(wo, active)
+            value, density = dr.lerp(value, v1, self.blend), dr.lerp(density, p1, self.blend)
+        return value, density
 
     def eval_pdf(self, wo: Array3f, active: Bool) -> tuple[Array3f, Float]:
         """f * |cos(wo)| and the solid-angle pdf of sampling world direction wo."""
-        wo = self.to_local(wo)
-        value, density = Array3f(0.0), Float(0.0)
-        for (mask, f), (_, p) in zip(self._each("eval", self.wi, wo, active, smooth_only=True),
-                                     self._each("pdf", self.wi, wo, active, smooth_only=True)):
-            value, density = dr.select(mask, f, value), dr.select(mask, p, density)
+        value, density = self._eval_pdf_local(self.to_local(wo), active)
         if self.opacity is not None:
             value, density = value * self.opacity, density * self.opacity
         return value, density
@@ -112,48 +183,37 @@ class SurfaceBSDF:
     def sample(self, u1: Float, u2: Array2f, active: Bool) -> tuple[BSDFSample, Array3f]:
         """A sampled direction (BSDFSample, wo in world space) and its weight f |cos| / pdf."""
         if self.opacity is None:
-            return self._sample(u1, u2, active)
+            bs, weight = self._sample(u1, u2, active)
+            return replace(bs, wo=self.to_world(bs.wo)), weight
         nested = u1 < self.opacity               # a mask: its BSDF with probability opacity, else straight on
         bs, weight = self._sample(dr.select(nested, u1 / self.opacity, u1), u2, active & nested)
-        through = BSDFSample(self.to_world(-self.wi), 1.0 - self.opacity, Float(1.0), UInt32(NULL))
-        bs = BSDFSample(*(dr.select(nested, a, b) for a, b in zip(
-            (bs.wo, bs.pdf * self.opacity, bs.eta, bs.sampled_type), (through.wo, through.pdf, through.eta,
-                                                                          through.sampled_type))))
-        return bs, dr.select(nested, weight, dr.select(active, Array3f(1.0), Array3f(0.0)))
+        through = BSDFSample(-self.wi, 1.0 - self.opacity, Float(1.0), UInt32(NULL))
+        bs = _select(nested, replace(bs, pdf=bs.pdf * self.opacity), through)
+        return (replace(bs, wo=self.to_world(bs.wo)),
+                dr.select(nested, weight, dr.select(active, Array3f(1.0), Array3f(0.0))))
 
     def _sample(self, u1: Float, u2: Array2f, active: Bool) -> tuple[BSDFSample, Array3f]:
-        out, weight = None, Array3f(0.0)
-        for mask, (bs, w) in self._each("sample", self.wi, u1, u2, active):
-            if out is None:
-                out = bs
-            else:
-                out = BSDFSample(*(dr.select(mask, a, b) for a, b in
-                                   zip((bs.wo, bs.pdf, bs.eta, bs.sampled_type),
-                                       (out.wo, out.pdf, out.eta, out.sampled_type))))
-            weight = dr.select(mask, w, weight)
-        if out is None:        # a scene without materials
-            return BSDFSample(Array3f(0.0), Float(0.0), Float(1.0), UInt32(0)), weight
-        return replace(out, wo=self.to_world(out.wo)), weight
+        """A local sample of the (blended) BSDF."""
+        if self.blend is None:
+            return self.parts[0].sample(u1, u2, active)
+        w = self.blend
+        second = u1 < w
+        u = dr.select(second, u1 / w, (u1 - w) / (1.0 - w))
+        bs0, w0 = self.parts[0].sample(u, u2, active & ~second)
+        bs1, w1 = self.parts[1].sample(u, u2, active & second)
+        bs, weight = _select(second, bs1, bs0), dr.select(second, w1, w0)
+        mixture = self._eval_pdf_local(bs.wo, active)[1]
+        chosen = bs.pdf * dr.select(second, w, 1.0 - w)
+        return replace(bs, pdf=dr.select(has_flag(bs.sampled_type, DELTA), chosen, mixture)), weight
 
     def split(self, slot: UInt32, active: Bool) -> tuple[Array3f, Array3f]:
         """Lobe `slot` of each lane's split kind: world direction and weight f |cos| (delta lobes)."""
-        wo, weight = Array3f(0.0), Array3f(0.0)
-        for code, module in self.kinds:
-            if not hasattr(module, "split"):
-                continue
-            mask = active & (self.kind == code)
-            for k, (d, w) in enumerate(module.split(self.params[code], self.wi, mask)):
-                chosen = mask & (slot == k)
-                wo, weight = dr.select(chosen, d, wo), dr.select(chosen, w, weight)
+        wo, weight = self.parts[0].split(slot, active)
         return self.to_world(wo), weight
 
     def albedo(self, active: Bool) -> Array3f:
         """The reflectance the albedo AOV shows (kinds that give one; 0 elsewhere)."""
-        out = Array3f(0.0)
-        for code, module in self.kinds:
-            if hasattr(module, "albedo"):
-                out = dr.select(active & (self.kind == code), module.albedo(self.params[code]), out)
-        return out
+        return self.parts[0].albedo(active)
 
 
 def shading_tangents(n: Array3f, dpdu: Array3f | None) -> tuple[Array3f, Array3f]:

@@ -18,7 +18,12 @@ class MaterialTables:
 
     def __init__(self, bsdfs: list[BSDF], kinds: set[int] | None = None):
         backs = [b.back for b in bsdfs if b.back is not None]
-        self.bsdfs = bsdfs + [b for i, b in enumerate(backs) if b not in bsdfs and b not in backs[:i]]
+        seconds = [b.blend[1] for b in bsdfs if b.blend is not None]
+        backs += [b.back for b in seconds if b.back is not None]
+        self.bsdfs = list(bsdfs)
+        for b in backs + seconds:        # the materials only a two-sided material's back or a blend refers to
+            if b not in self.bsdfs:
+                self.bsdfs.append(b)
         bsdfs = self.bsdfs
         self.kinds = {KIND_CODE[b.kind] for b in bsdfs} if kinds is None else set(kinds)
         self.textured = any(b.texture is not None for b in bsdfs)
@@ -32,6 +37,10 @@ class MaterialTables:
         self._twosided = UInt32([int(b.twosided) for b in rows])
         self.any_back = bool(backs)
         self.any_mask = any(b.opacity < 1.0 for b in rows)
+        self.any_blend = bool(seconds)
+        self._blend_weight = Float([b.blend[0] if b.blend is not None else 0.0 for b in rows])
+        self._blend_second = UInt32([bsdfs.index(b.blend[1]) if b.blend is not None else i
+                                     for i, b in enumerate(rows)])
         self._opacity = Float([b.opacity for b in rows])
         self._back = UInt32([bsdfs.index(b.back) if b.back is not None else i for i, b in enumerate(rows)])
         self.textures = TextureTables(rows) if self.textured else None
@@ -69,6 +78,11 @@ class MaterialTables:
     def opacity(self, material: UInt32, active: Bool) -> Float:
         """A `mask`ed material's opacity (1 elsewhere)."""
         return dr.gather(Float, self._opacity, material, active)
+
+    def blend(self, material: UInt32, active: Bool) -> tuple[Float, UInt32]:
+        """A `blendbsdf`'s weight w and second material (0 and the material itself elsewhere)."""
+        return (dr.gather(Float, self._blend_weight, material, active),
+                dr.gather(UInt32, self._blend_second, material, active))
 
     def has_table(self, kind: str) -> bool:
         return kind in self._tables

@@ -23,8 +23,9 @@ def from_xml(ctx, props, node) -> BSDF:
     for child, side in zip(inner, sides):
         if side.twosided:
             raise ctx.error(child, "a twosided bsdf cannot be nested in twosided")
-        if KINDS[KIND_CODE[side.kind]].FLAGS & TRANSMISSION:
-            raise ctx.error(child, f"twosided wraps bsdfs without transmission only (as Mitsuba); "
-                                   f"'{side.kind}' transmits")
+        for kind in [side.kind] + ([side.blend[1].kind] if side.blend is not None else []):
+            if KINDS[KIND_CODE[kind]].FLAGS & TRANSMISSION:
+                raise ctx.error(child, f"twosided wraps bsdfs without transmission only (as Mitsuba); "
+                                       f"'{kind}' transmits")
     back = sides[-1] if len(sides) == 2 and sides[1] != sides[0] else None
     return replace(sides[0], twosided=True, back=back)
