@@ -72,6 +72,9 @@ VALUES = {
     "raw": '<boolean name="raw" value="true"/>', "filter_type": '<string name="filter_type" value="nearest"/>',
     "wrap_mode": '<string name="wrap_mode" value="clamp"/>', "format": '<string name="format" value="fp16"/>',
     "opacity": '<float name="opacity" value="0.3"/>', "weight": '<float name="weight" value="0.3"/>',
+    "normalmap": '<texture type="bitmap" name="normalmap"><string name="filename" value="b.png"/></texture>',
+    "flip_invalid_normals": '<boolean name="flip_invalid_normals" value="false"/>',
+    "use_shadowing_function": '<boolean name="use_shadowing_function" value="false"/>',
     "accel": '<boolean name="accel" value="false"/>', "texture": '<texture type="checkerboard" name="texture"/>', "intensity": '<rgb name="intensity" value="2, 3, 4"/>',
 }
 HONOURED = "honoured"
@@ -96,7 +99,8 @@ EXPECTED = {
              "k": HONOURED, "specular_reflectance": HONOURED, "specular_transmittance": REFUSED, "int_ior": HONOURED,
              "ext_ior": HONOURED, "nonlinear": HONOURED, "diffuse_reflectance": HONOURED, "opacity": HONOURED,
              "distribution": HONOURED, "alpha": HONOURED, "alpha_u": REFUSED, "alpha_v": REFUSED,
-             "sample_visible": HONOURED, "weight": HONOURED},
+             "sample_visible": HONOURED, "weight": HONOURED, "normalmap": HONOURED,
+             "flip_invalid_normals": HONOURED, "use_shadowing_function": HONOURED},
     "texture": {"color0": HONOURED, "color1": HONOURED, "to_uv": HONOURED, "filename": HONOURED, "bitmap": REFUSED,
                 "data": REFUSED, "raw": HONOURED, "filter_type": HONOURED, "wrap_mode": HONOURED, "format": REFUSED,
                 "accel": NO_EFFECT},
@@ -145,8 +149,10 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
             p += f'<string name="filename" value="{name}"/>'
         body = f'<shape type="{kind}">{p}</shape>'
     elif tag == "bsdf":
-        inner = {"twosided": '<bsdf type="diffuse"/>', "mask": '<bsdf type="diffuse"/>',
+        inner = {"twosided": '<bsdf type="diffuse"/>', "mask": '<bsdf type="diffuse"/>', "normalmap": '<bsdf type="diffuse"/>',
                  "blendbsdf": '<bsdf type="diffuse"/><bsdf type="conductor"/>'}.get(kind, "")
+        if kind == "normalmap" and param != "normalmap":
+            inner += VALUES["normalmap"].replace("b.png", "a.png")
         body = f'<shape type="rectangle"><bsdf type="{kind}">{inner}{p}</bsdf></shape>'
     elif tag == "texture":
         if kind == "bitmap":

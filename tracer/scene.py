@@ -126,8 +126,9 @@ class Scene:
                 out.append(f"{self.path}: the report estimator does not render a '{wrapper}' of "
                            f"'{next(k for k in kinds if k in split)}'; use --estimator path")
                 break
-        if estimator == "report" and any(b.texture is not None for b in self.bsdfs):
-            out.append(f"{self.path}: the report estimator does not render textures (checkerboard, bitmap); "
+        if estimator == "report" and any(b.texture is not None or b.normalmap is not None for b in self.bsdfs):
+            out.append(f"{self.path}: the report estimator does not render textures (checkerboard, bitmap, "
+                       "normalmap); "
                        "use --estimator path")
         return out
 

@@ -19,9 +19,9 @@ def from_xml(ctx, props, node) -> BSDF:
         raise ctx.error(props.values.get("weight", node), f"weight must lie in [0, 1], got {weight}")
     first, second = (ctx.bsdf(b) for b in inner)
     for child, part in zip(inner, (first, second)):
-        if part.blend is not None or part.opacity < 1.0:
-            raise ctx.error(child, "blendbsdf blends plain bsdfs (no blendbsdf or mask inside; a mask may wrap "
-                                   "the blendbsdf)")
+        if part.blend is not None or part.opacity < 1.0 or part.normalmap is not None:
+            raise ctx.error(child, "blendbsdf blends plain bsdfs (no blendbsdf, mask or normalmap inside; a mask "
+                                   "may wrap the blendbsdf)")
     if first.twosided != second.twosided:
         raise ctx.error(node, "blendbsdf's two bsdfs must both be twosided or both not (wrap the blendbsdf "
                               "in twosided instead)")

@@ -136,6 +136,9 @@ class BSDF:
     back: BSDF | None = None        # a two-sided material's back, where it differs from the front (this BSDF)
     opacity: float = 1.0            # a `mask`: the probability of scattering by this BSDF (else the ray passes)
     blend: tuple[float, BSDF] | None = None   # a `blendbsdf`: (w, the second material); f = (1 - w) f + w f2
+    normalmap: Bitmap | None = None   # a `normalmap` around it: the tilted normals (materials.normalmap)
+    normalmap_flip: bool = True       # its flip_invalid_normals
+    normalmap_shadowing: bool = True  # its use_shadowing_function
 
     @property
     def perfect_mirror(self) -> bool:

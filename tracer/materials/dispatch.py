@@ -11,7 +11,7 @@ import drjit as dr
 
 from ..jit import Array2f, Array3f, Bool, Float, UInt32
 from ..sampling import coordinate_system
-from . import (conductor, dielectric, diffuse, null, plastic, roughconductor, roughdielectric, roughplastic,
+from . import (conductor, dielectric, diffuse, normalmap, null, plastic, roughconductor, roughdielectric, roughplastic,
                thindielectric)
 from .bsdf import DELTA, NULL, SMOOTH, TRANSMISSION, BSDFSample, has_flag
 
@@ -104,8 +104,11 @@ class SurfaceBSDF:
     `lit`: lanes where the BSDF is not black from wi's side (one-sided kinds without transmission)."""
 
     def __init__(self, tables, surf, wi: Array3f, active: Bool):
-        self.n = surf.ns
+        self.n = self.n0 = surf.ns
         self.s, self.t = shading_tangents(self.n, surf.dpdu)
+        self.tilt = None                   # normal-mapped lanes' (tilted normal, has, shadowing) (None: no such)
+        if tables.any_normalmap:
+            self._tilt(tables, surf, self._local(wi), active)
         wi = self._local(wi)
         self.opacity = tables.opacity(surf.material, active) if tables.any_mask else None   # the mask's own
         self.flip = None                   # lanes on the back of a two-sided material (None: no such material)
@@ -128,9 +131,28 @@ class SurfaceBSDF:
             masked = self.opacity < 1.0
             self.delta, self.lit = self.delta | masked, self.lit | masked
 
+    def _tilt(self, tables, surf, wi: Array3f, active: Bool) -> None:
+        """Normal-mapped lanes (materials.normalmap): the frame becomes the tilted one, in world space."""
+        m, has, flip, shadow = tables.normalmap(surf, active)
+        mirrored = flip & (wi.z * dr.dot(wi, m) <= 0)
+        m = Array3f(dr.select(mirrored, -m.x, m.x), dr.select(mirrored, -m.y, m.y), m.z)
+        m = dr.select(has, m, Array3f(0.0, 0.0, 1.0))
+        local = normalmap.tilted_frame(m)
+        self.s, self.t, self.n = (self.s * v.x + self.t * v.y + self.n0 * v.z for v in local)
+        self.tilt = (local[2], has, shadow)
+
+    def _tilted(self, wo: Array3f, wo_local: Array3f, value: Array3f) -> tuple[Array3f, Bool]:
+        """On normal-mapped lanes, a response (f cos, or a sample's weight) for world direction wo (wo_local:
+        in the tilted frame): 0 below the unperturbed or the tilted surface, times the shadowing term."""
+        n, has, shadow = self.tilt
+        cos = dr.dot(wo, self.n0)
+        above = ~has | (cos * wo_local.z > 0)
+        value = dr.select(has & shadow, value * normalmap.shadowing(n, cos), value)
+        return dr.select(above, value, Array3f(0.0)), above
+
     def state(self) -> list:
         """The arrays it holds, for SceneGeometry.keep."""
-        return [self.s, self.t, self.n, self.wi, self.flip, self.opacity, self.blend, self.smooth, self.delta,
+        return [self.s, self.t, self.n, self.n0, list(self.tilt or ()), self.wi, self.flip, self.opacity, self.blend, self.smooth, self.delta,
                 self.lit, [(part.kind, list(part.params.values())) for part in self.parts]]
 
     def kinds_where(self, has) -> Bool:
@@ -148,8 +170,8 @@ class SurfaceBSDF:
 
     @property
     def normal(self) -> Array3f:
-        """The shading normal on the side of wi for two-sided materials (the frame's z as the kind sees it)."""
-        return dr.select(self.flip, -self.n, self.n) if self.flip is not None else self.n
+        """The shading normal (before any normal map) on the side of wi for two-sided materials."""
+        return dr.select(self.flip, -self.n0, self.n0) if self.flip is not None else self.n0
 
     def _local(self, v: Array3f) -> Array3f:
         return Array3f(dr.dot(v, self.s), dr.dot(v, self.t), dr.dot(v, self.n))
@@ -172,7 +194,11 @@ class SurfaceBSDF:
 
     def eval_pdf(self, wo: Array3f, active: Bool) -> tuple[Array3f, Float]:
         """f * |cos(wo)| and the solid-angle pdf of sampling world direction wo."""
-        value, density = self._eval_pdf_local(self.to_local(wo), active)
+        local = self.to_local(wo)
+        value, density = self._eval_pdf_local(local, active)
+        if self.tilt is not None:
+            value, above = self._tilted(wo, local, value)
+            density = dr.select(above, density, 0.0)
         if self.opacity is not None:
             value, density = value * self.opacity, density * self.opacity
         return value, density
@@ -183,14 +209,22 @@ class SurfaceBSDF:
     def sample(self, u1: Float, u2: Array2f, active: Bool) -> tuple[BSDFSample, Array3f]:
         """A sampled direction (BSDFSample, wo in world space) and its weight f |cos| / pdf."""
         if self.opacity is None:
-            bs, weight = self._sample(u1, u2, active)
+            bs, weight = self._tilted_sample(*self._sample(u1, u2, active))
             return replace(bs, wo=self.to_world(bs.wo)), weight
         nested = u1 < self.opacity               # a mask: its BSDF with probability opacity, else straight on
-        bs, weight = self._sample(dr.select(nested, u1 / self.opacity, u1), u2, active & nested)
+        bs, weight = self._tilted_sample(*self._sample(dr.select(nested, u1 / self.opacity, u1), u2, active & nested))
         through = BSDFSample(-self.wi, 1.0 - self.opacity, Float(1.0), UInt32(NULL))
         bs = _select(nested, replace(bs, pdf=bs.pdf * self.opacity), through)
         return (replace(bs, wo=self.to_world(bs.wo)),
                 dr.select(nested, weight, dr.select(active, Array3f(1.0), Array3f(0.0))))
+
+    def _tilted_sample(self, bs: BSDFSample, weight: Array3f) -> tuple[BSDFSample, Array3f]:
+        """A local sample on normal-mapped lanes: nothing below the unperturbed or the tilted surface, the
+        weight times the shadowing term."""
+        if self.tilt is None:
+            return bs, weight
+        weight, above = self._tilted(self.to_world(bs.wo), bs.wo, weight)
+        return replace(bs, pdf=dr.select(above, bs.pdf, 0.0)), weight
 
     def _sample(self, u1: Float, u2: Array2f, active: Bool) -> tuple[BSDFSample, Array3f]:
         """A local sample of the (blended) BSDF."""

@@ -3,6 +3,8 @@ reflectance and its texture) and one table per kind (its module's `table`), gath
 table a scene's materials do not need is not built, and its code is not traced."""
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import drjit as dr
 import numpy as np
 
@@ -26,11 +28,13 @@ class MaterialTables:
                 self.bsdfs.append(b)
         bsdfs = self.bsdfs
         self.kinds = {KIND_CODE[b.kind] for b in bsdfs} if kinds is None else set(kinds)
-        self.textured = any(b.texture is not None for b in bsdfs)
+        self.any_normalmap = any(b.normalmap is not None for b in bsdfs)
+        self.textured = any(b.texture is not None for b in bsdfs) or self.any_normalmap
         self.any_twosided = any(b.twosided for b in bsdfs)
-        # whether a material is not invariant under rotation about the normal: then the shading frame
-        # follows the surface's dp/du as Mitsuba's; elsewhere any frame about the normal gives the same image
-        self.oriented = any(getattr(b, "alpha_u", None) != getattr(b, "alpha_v", None) for b in bsdfs)
+        # whether a material is not invariant under rotation about the normal (anisotropic roughness, a normal
+        # map in tangent space): then the shading frame follows the surface's dp/du as Mitsuba's; elsewhere any
+        # frame about the normal gives the same image
+        self.oriented = any(b.alpha_u != b.alpha_v or b.normalmap is not None for b in bsdfs)
         rows = bsdfs or [BSDF("diffuse", (0.0, 0.0, 0.0))]   # an empty scene still gathers (masked off)
         self._reflectance = Float(np.array([b.reflectance for b in rows]).ravel())
         self._kind = UInt32([KIND_CODE[b.kind] for b in rows])
@@ -44,6 +48,11 @@ class MaterialTables:
         self._opacity = Float([b.opacity for b in rows])
         self._back = UInt32([bsdfs.index(b.back) if b.back is not None else i for i, b in enumerate(rows)])
         self.textures = TextureTables(rows) if self.textured else None
+        if self.any_normalmap:
+            self.normalmaps = TextureTables([SimpleNamespace(texture=b.normalmap) for b in rows])
+            self._normalmap_flags = Float(np.array([[b.normalmap_flip, b.normalmap_shadowing] for b in rows],
+                                                   float).ravel())
+            self._has_normalmap = UInt32([int(b.normalmap is not None) for b in rows])
         self._tables: dict[str, tuple[Float, int]] = {}
         for code in sorted(self.kinds):
             module = KINDS[code]
@@ -63,6 +72,15 @@ class MaterialTables:
         if not self.textured:
             return rho
         return self.textures.reflectance(surf.material, surf.uv, rho, active)
+
+    def normalmap(self, surf, active: Bool) -> tuple[Array3f, Bool, Bool, Bool]:
+        """A normal map's tilted normal 2 c - 1 at the surface point (0, 0, 1 for materials without one), and
+        per lane whether the material has one and its flip_invalid_normals and use_shadowing_function."""
+        m = self.normalmaps.reflectance(surf.material, surf.uv, Array3f(0.5, 0.5, 1.0), active) * 2.0 - 1.0
+        has = dr.gather(UInt32, self._has_normalmap, surf.material, active) > 0
+        flip = dr.gather(Float, self._normalmap_flags, surf.material * 2, active) > 0
+        shadow = dr.gather(Float, self._normalmap_flags, surf.material * 2 + 1, active) > 0
+        return m, has, flip, shadow
 
     def twosided(self, material: UInt32, active: Bool) -> Bool:
         if not self.any_twosided:
