@@ -102,3 +102,27 @@ def test_mitsubas_criterion_passes_its_reference_and_fails_a_dim_image():
     assert mitsuba_passes(noisy, ref, var, 1000)
     assert not mitsuba_passes(noisy * 0.9, ref, var, 1000)
     assert mitsuba_passes(np.full_like(ref, 1e-4), np.zeros_like(ref), np.zeros_like(ref), 1000)
+
+
+def test_cached_repetitions_resume_and_extend(tmp_path):
+    from validation.calibration import cached_repetitions
+
+    calls = []
+
+    def one(r):
+        calls.append(r)
+        if r == 3:
+            raise KeyboardInterrupt       # interrupted during the fourth repetition
+        return {"test": np.full(2, r, np.float32)}
+
+    path = tmp_path / "study.npz"
+    with pytest.raises(KeyboardInterrupt):
+        cached_repetitions(path, 5, "study", one)
+    assert calls == [0, 1, 2, 3] and len(np.load(path)["seconds"]) == 3       # the three done are kept
+    calls.clear()
+    first = cached_repetitions(path, 2, "study", one)                           # fewer: nothing rendered
+    assert calls == [] and first["test"].tolist() == [[0, 0], [1, 1]]
+    done = cached_repetitions(path, 3, "study", lambda r: {"test": np.full(2, 9, np.float32)})
+    assert done["test"][:, 0].tolist() == [0, 1, 2] and done["seconds"].shape == (3,)
+    more = cached_repetitions(path, 4, "study", lambda r: {"test": np.full(2, 10 * r, np.float32)})
+    assert more["test"][:, 0].tolist() == [0, 1, 2, 30]

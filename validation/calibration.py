@@ -20,6 +20,7 @@ from __future__ import annotations
 import itertools
 import time
 from dataclasses import asdict, dataclass
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -421,3 +422,21 @@ def report(out: Path, repetitions: int = 12) -> Path:
         "references cached); seconds per null repetition (both sides rendered) are in calibration.json.", "",
         "## Machine and versions", ""] + environment(f"validate calibrate --repetitions {repetitions}")
     return write_text(out, "\n".join(lines) + "\n")
+
+
+def cached_repetitions(path: Path, repetitions: int, desc: str,
+                       render_one: Callable[[int], dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """`repetitions` repetitions of a study's renders, `render_one(r)` giving repetition r's arrays by name, with
+    the seconds each took; written to `path` (atomically) after every repetition, so that an interrupted run
+    resumes and a larger one extends it."""
+    data = {k: list(v) for k, v in np.load(path).items()} if path.exists() else {"seconds": []}
+    for r in tqdm(range(len(data["seconds"]), repetitions), desc=desc, unit="repetition"):
+        start = time.perf_counter()
+        for name, value in render_one(r).items():
+            data.setdefault(name, []).append(value)
+        data["seconds"].append(time.perf_counter() - start)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp.npz")
+        np.savez(tmp, **{k: np.stack(v) for k, v in data.items()})
+        tmp.replace(path)
+    return {k: np.stack(v[:repetitions]) for k, v in data.items()}

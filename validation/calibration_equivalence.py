@@ -19,7 +19,6 @@ default's (the harder case for the t approximation). Renders are cached per scen
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,7 +26,7 @@ import numpy as np
 from tqdm import tqdm
 
 from . import protocol
-from .calibration import CACHE, interval
+from .calibration import CACHE, cached_repetitions, interval
 from .check import stages as plan_stages
 from .renderers import MitsubaRenderer
 from .scenefile import plan
@@ -58,20 +57,15 @@ def renders(scene: str, repetitions: int, cache: Path = CACHE) -> dict[str, np.n
     scene_plan = plan(SCENES[scene], size=protocol.SIZE, max_depth=MAX_DEPTH[scene])
     key = scene_plan.content_key(stages=STAGES, passes=protocol.PASSES, seed=SEED, design="equivalence")
     path = cache / f"equivalence-{scene}-{key}.npz"
-    data = {k: list(v) for k, v in np.load(path).items()} if path.exists() else {"test": [], "ref": [], "seconds": []}
     renderer = MitsubaRenderer()
-    for r in tqdm(range(len(data["seconds"]), repetitions), desc=f"equivalence {scene}", unit="repetition"):
-        start = time.perf_counter()
-        for name, side in (("test", 0), ("ref", 50)):
-            data[name].append(np.stack([block_means(renderer.passes(scene_plan, protocol.PASSES, spp,
-                                                                    SEED + 1000 * r + 100 * s + side),
-                                                    protocol.BLOCK).astype(np.float32) for s, spp in enumerate(STAGES)]))
-        data["seconds"].append(time.perf_counter() - start)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
-        np.savez(tmp, **{k: np.stack(v) for k, v in data.items()})
-        tmp.replace(path)
-    return {k: np.stack(v[:repetitions]) for k, v in data.items()}
+
+    def one(r: int) -> dict[str, np.ndarray]:
+        return {name: np.stack([block_means(renderer.passes(scene_plan, protocol.PASSES, spp,
+                                                           SEED + 1000 * r + 100 * s + side),
+                                           protocol.BLOCK).astype(np.float32) for s, spp in enumerate(STAGES)])
+                for name, side in (("test", 0), ("ref", 50))}
+
+    return cached_repetitions(path, repetitions, f"equivalence {scene}", one)
 
 
 def sequence(test: np.ndarray, ref: np.ndarray, alpha: float, margin: Margin, scale: float = 1.0) -> Outcome:

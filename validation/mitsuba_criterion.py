@@ -14,15 +14,13 @@ run on the same renders of the renderer under test (Mitsuba's path, scaled by s 
 """
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
 from scipy import stats as sps
-from tqdm import tqdm
 
 from . import protocol
-from .calibration import CACHE
+from .calibration import CACHE, cached_repetitions
 from .renderers import MitsubaRenderer
 from .scenefile import plan
 from .stats import block_means, compare
@@ -56,19 +54,14 @@ def renders(scene: Path, repetitions: int, cache: Path = CACHE) -> dict[str, np.
     spp = BUDGET // (scene_plan.width * scene_plan.height) // protocol.PASSES
     key = scene_plan.content_key(spp=spp, passes=protocol.PASSES, seed=SEED, design="mitsuba-criterion")
     path = cache / f"criterion-{scene.stem}-{key}.npz"
-    data = {k: list(v) for k, v in np.load(path).items()} if path.exists() else {"test": [], "ref": [], "seconds": []}
     renderer = MitsubaRenderer()
-    for r in tqdm(range(len(data["seconds"]), repetitions), desc=f"criterion {scene.stem}", unit="repetition"):
-        start = time.perf_counter()
-        data["test"].append(renderer.passes(scene_plan, protocol.PASSES, spp, SEED + 1000 * r))
-        data["ref"].append(block_means(renderer.passes(scene_plan, protocol.PASSES, spp, SEED + 1000 * r + 500),
-                                       protocol.BLOCK).astype(np.float32))
-        data["seconds"].append(time.perf_counter() - start)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
-        np.savez(tmp, **{k: np.stack(v) for k, v in data.items()})
-        tmp.replace(path)
-    return {k: np.stack(v[:repetitions]) for k, v in data.items()} | {"spp": spp}
+
+    def one(r: int) -> dict[str, np.ndarray]:
+        return {"test": renderer.passes(scene_plan, protocol.PASSES, spp, SEED + 1000 * r),
+                "ref": block_means(renderer.passes(scene_plan, protocol.PASSES, spp, SEED + 1000 * r + 500),
+                                   protocol.BLOCK).astype(np.float32)}
+
+    return cached_repetitions(path, repetitions, f"criterion {scene.stem}", one) | {"spp": spp}
 
 
 def measure(scene: Path, repetitions: int) -> list[dict]:
