@@ -607,7 +607,9 @@ def _verdict(o: Outcome) -> str:
 
 
 def _md(s: str) -> str:
-    return s.replace("|", "\\|")
+    """A table cell: pipes escaped, paths inside the repository written relative to it (messages quote the
+    files they name, Mitsuba's too)."""
+    return s.replace(f"{ROOT}/", "").replace("|", "\\|")
 
 
 def main(argv=None) -> int:
