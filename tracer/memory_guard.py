@@ -8,7 +8,7 @@ RESERVE_BYTES available stops (tracer.rendering turns either into tracer.errors.
 """
 from __future__ import annotations
 
-from .plan import available_memory, gib
+from .plan import available_memory, gib, proc_bytes
 
 RESERVE_BYTES = 256 << 20    # available memory below which a render stops (the killer acts near none)
 
@@ -31,11 +31,4 @@ def is_allocation_failure(error: BaseException) -> bool:
 
 def resident_bytes() -> int | None:
     """This process's resident memory (Linux's VmRSS), None where unknown."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmRSS:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return None
+    return proc_bytes("/proc/self/status", "VmRSS")

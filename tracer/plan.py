@@ -102,14 +102,20 @@ def gib(n: float) -> str:
 
 def available_memory() -> int:
     """Bytes of memory available to a new allocation: Linux's MemAvailable, else the physical memory."""
+    available = proc_bytes("/proc/meminfo", "MemAvailable")
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") if available is None else available
+
+
+def proc_bytes(path: str, key: str) -> int | None:
+    """A `key: N kB` line of a Linux /proc file (meminfo, self/status) in bytes; None where there is none."""
     try:
-        with open("/proc/meminfo") as f:
+        with open(path) as f:
             for line in f:
-                if line.startswith("MemAvailable:"):
+                if line.startswith(f"{key}:"):
                     return int(line.split()[1]) * 1024
     except OSError:
         pass
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    return None
 
 
 def film_bytes(width: int, height: int, border: int, float_bytes: int, images: int, films: int = 1) -> int:
