@@ -27,7 +27,7 @@ import numpy as np
 
 from . import protocol
 from .references import Reference, mitsuba_reference
-from .renderers import ExternalRenderer, TracerRenderer
+from .renderers import ExternalRenderer, TracerRenderer, independence
 from .scenefile import ScenePlan, ScenePlanError, plan
 from .stats import POWER, Comparison, Margin, block_means, compare
 
@@ -108,6 +108,24 @@ class CheckResult:
         return out
 
 
+@dataclass
+class Skipped:
+    """A check the renderer declined: the scene uses something it does not render (its exit status
+    renderers.EXIT_UNSUPPORTED, or a built-in adapter's refusal)."""
+    scene: str
+    renderer: str
+    max_depth: int | None       # None: the scene's own (refused before it was planned)
+    reason: str
+
+    def line(self) -> str:
+        depth = "the scene's max_depth" if self.max_depth is None else f"max_depth {self.max_depth}"
+        return f"{'skipped':<12} {self.scene} [{self.renderer}, {depth}]: unsupported: {self.reason}"
+
+    def as_dict(self) -> dict:
+        return {"scene": self.scene, "renderer": self.renderer, "max_depth": self.max_depth,
+                "verdict": "skipped: unsupported", "note": self.reason}
+
+
 def _pct(x: float) -> str:
     return f"{100 * x:g}%"
 
@@ -154,7 +172,7 @@ def prepare(scene_file: str | Path, renderer: TracerRenderer | ExternalRenderer,
     if isinstance(renderer, TracerRenderer):
         scene_plan.tracer_scene()                   # the tracer's loader refuses what it does not honour
     else:
-        renderer.command(scene_plan, Path("pass.exr"), settings.spp or default_spp(renderer), settings.seed)
+        renderer.prepare(scene_plan, settings.spp or default_spp(renderer), settings.seed)
     return scene_plan
 
 
@@ -171,6 +189,7 @@ def run(scene_plan: ScenePlan, renderer: TracerRenderer | ExternalRenderer, sett
     for stage, spp in enumerate(plan_spp, 1):
         ref = mitsuba_reference(scene_plan, settings.passes, reference_spp(renderer, spp))   # Mitsuba refuses first
         ours = renderer.passes(scene_plan, settings.passes, spp, settings.seed + (stage - 1) * settings.passes)
+        independence(ours, noisy=bool((ref.var > 0).any()))      # identical or correlated passes: refused
         comparison = compare(block_means(ours, protocol.BLOCK), ref.blocks, level, settings.margin)
         spent += settings.passes * spp
         if comparison.verdict != "inconclusive":
@@ -260,10 +279,11 @@ def exit_code(results: list[CheckResult]) -> int:
     return 1 if "disagree" in verdicts else 3 if "inconclusive" in verdicts else 0
 
 
-def write_json(results: list[CheckResult], path: Path) -> None:
+def write_json(results: list[CheckResult], path: Path, skipped: list[Skipped] = ()) -> None:
     from .provenance import write_json as write
 
-    write(path, {"exit_code": exit_code(results), "checks": [r.as_dict() for r in results]})
+    write(path, {"exit_code": exit_code(results), "checks": [r.as_dict() for r in results],
+                 "skipped": [s.as_dict() for s in skipped]})
 
 
 def _properties(r: CheckResult) -> dict[str, str]:
@@ -277,12 +297,12 @@ def _properties(r: CheckResult) -> dict[str, str]:
     return out
 
 
-def write_junit(results: list[CheckResult], path: Path) -> None:
-    """JUnit XML: one test case per scene x renderer x depth; disagree is a failure, inconclusive skipped;
-    each case's properties carry the detectable bias and the margin."""
-    suite = ET.Element("testsuite", name="validate check", tests=str(len(results)),
+def write_junit(results: list[CheckResult], path: Path, skipped: list[Skipped] = ()) -> None:
+    """JUnit XML: one test case per scene x renderer x depth; disagree is a failure, inconclusive and
+    unsupported skipped; each case's properties carry the detectable bias and the margin."""
+    suite = ET.Element("testsuite", name="validate check", tests=str(len(results) + len(skipped)),
                        failures=str(sum(r.verdict == "disagree" for r in results)),
-                       skipped=str(sum(r.verdict == "inconclusive" for r in results)),
+                       skipped=str(sum(r.verdict == "inconclusive" for r in results) + len(skipped)),
                        time=f"{sum(r.seconds for r in results):.3f}")
     for r in results:
         case = ET.SubElement(suite, "testcase", classname=f"validate.check.{Path(r.scene).stem}",
@@ -295,6 +315,10 @@ def write_junit(results: list[CheckResult], path: Path) -> None:
         elif r.verdict == "inconclusive":
             ET.SubElement(case, "skipped", message=r.note or r.comparison.summary())
         ET.SubElement(case, "system-out").text = r.line()
+    for r in skipped:
+        case = ET.SubElement(suite, "testcase", classname=f"validate.check.{Path(r.scene).stem}",
+                             name=f"{r.renderer} max_depth={r.max_depth}", time="0")
+        ET.SubElement(case, "skipped", message=f"unsupported: {r.reason}")
     root = ET.Element("testsuites")
     root.append(suite)
     from .provenance import write_text

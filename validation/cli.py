@@ -12,6 +12,7 @@ exit codes for CI (0 all agree, 1 any disagrees, 3 any inconclusive and none dis
 from __future__ import annotations
 
 import argparse
+import os
 import shlex
 import sys
 from dataclasses import replace
@@ -111,8 +112,9 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-EXIT_NOTE = ("exit status: 0 every check agrees, 1 any disagrees, 3 any is inconclusive (and none disagrees), "
-             "2 usage or input error")
+EXIT_UNSUPPORTED = 77    # validation.renderers.EXIT_UNSUPPORTED (not imported here: the parser loads fast)
+EXIT_NOTE = ("exit status: 0 every check agrees (or is skipped: the renderer does not support the scene), 1 any "
+             "disagrees, 3 any is inconclusive (and none disagrees), 2 usage or input error")
 
 
 def _check_parser(sub) -> None:
@@ -125,10 +127,19 @@ def _check_parser(sub) -> None:
     who.add_argument("--estimator", action="append", choices=("path", "report"),
                      help="the tracer's estimator under test (repeatable; default path)")
     who.add_argument("--renderer", metavar="'CMD ...'", help="an external renderer: a command template with "
-                     "{scene}, {output} (the EXR it must write), {spp}, {seed} and {defines} (-D name=value for "
-                     "the film size, max_depth, spp and every -D given here)")
-    k.add_argument("--timeout", type=float, metavar="SECONDS", help="--renderer: the most one pass may take; a pass "
+                     "the scene as {scene} (the file), {scene_resolved} (one self-contained Mitsuba XML with the "
+                     "plan written in) or {scene_json} (neutral JSON with PLY meshes); {output} and {seed} (one "
+                     "pass per call) or {outputs} and {seeds} (many, comma-separated); {spp}; {defines} (-D "
+                     "name=value for the film size, max_depth, spp and every -D given here). Exit status "
+                     f"{EXIT_UNSUPPORTED}: the scene is unsupported (reported as skipped). README: the renderer "
+                     "contract")
+    k.add_argument("--timeout", type=float, metavar="SECONDS", help="--renderer: the most one call may take; a call "
                    "that takes longer is stopped and the check ends with exit 2 (default: no limit)")
+    k.add_argument("--jobs", "-j", type=int, default=1, help="--renderer: calls run at once (a batch command with "
+                   "{outputs}: the passes split into this many calls; default 1)")
+    k.add_argument("--label", metavar="NAME", help="--renderer: its name in the verdict lines (default: the command)")
+    k.add_argument("--cache", type=Path, metavar="DIR", help="where Mitsuba's references are cached (default "
+                   "$VALIDATE_CACHE, else .cache/references in the working folder)")
     k.add_argument("--direct", "-N", type=int, default=16, help="report estimator: shadow rays per diffuse hit")
     k.add_argument("--indirect", "-M", type=int, default=8, help="report estimator: hemisphere rays per diffuse hit")
     depth = k.add_mutually_exclusive_group()
@@ -187,7 +198,8 @@ def _check(args) -> int:
     from tracer.estimators import BranchingEstimator
 
     from .check import Settings, exit_code, prepare, run, write_json, write_junit
-    from .renderers import ExternalRenderer, TracerRenderer
+    from .references import CACHE_VARIABLE
+    from .renderers import ExternalRenderer, RendererUnsupported, TracerRenderer
     from .scenefile import ScenePlanError
 
     defines = parse_defines(args.defines)
@@ -199,34 +211,57 @@ def _check(args) -> int:
     margin = _check_margin(args.margin)
     settings = Settings(passes=args.passes, spp=spp, seed=args.seed, alpha=args.alpha, size=args.size,
                         max_spp=args.max_spp, margin=margin)
+    if args.cache is not None:
+        os.environ[CACHE_VARIABLE] = str(args.cache)
     if args.renderer:
         if args.timeout is not None and not args.timeout > 0:
             raise ScenePlanError(f"--timeout must be a positive number of seconds, got {args.timeout}")
-        renderers = [ExternalRenderer(args.renderer, args.timeout)]
+        renderers = [ExternalRenderer(args.renderer, args.timeout, args.label, args.jobs)]
     else:
+        if args.label or args.jobs != 1:
+            raise ScenePlanError("--label and --jobs go with --renderer")
         renderers = [TracerRenderer(e, args.direct, args.indirect) for e in dict.fromkeys(args.estimator or ["path"])]
     depths = ([BranchingEstimator.from_report_depth(d).max_depth for d in args.report_depth] if args.report_depth
               else (args.max_depth or [None]))
     for scene in args.scenes:
         if not scene.is_file():
             raise ScenePlanError(f"scene file '{scene}' not found")
-    planned = [(prepare(scene, renderer, depth, defines, settings), renderer)   # every refusal before any pass
-               for scene in args.scenes for renderer in renderers for depth in depths]
+    planned, skipped = [], []
+    for scene in args.scenes:               # every refusal before any pass
+        for renderer in renderers:
+            for depth in depths:
+                try:
+                    planned.append((prepare(scene, renderer, depth, defines, settings), renderer))
+                except RendererUnsupported as e:
+                    skipped.append(_skip(scene, renderer, depth, e))
     results = []
+    for line in skipped:
+        print(line.line(), flush=True)
     for scene_plan, renderer in planned:
-        result = run(scene_plan, renderer, settings, args.output)
+        try:
+            result = run(scene_plan, renderer, settings, args.output)
+        except RendererUnsupported as e:
+            skipped.append(_skip(scene_plan.path, renderer, scene_plan.max_depth, e))
+            print(skipped[-1].line(), flush=True)
+            continue
         print(result.line(), flush=True)
         results.append(result)
     if args.json:
-        write_json(results, args.json)
+        write_json(results, args.json, skipped)
     if args.junit:
-        write_junit(results, args.junit)
+        write_junit(results, args.junit, skipped)
     code = exit_code(results)
-    print(f"validate check: {len(results)} checks, " + ", ".join(
+    print(f"validate check: {len(results) + len(skipped)} checks, " + ", ".join(
         f"{sum(r.verdict == v for r in results)} {v}" for v in ("agree", "equivalent", "disagree", "inconclusive")
         if v in ("disagree", "inconclusive") or any(r.verdict == v for r in results)) +
-        f" (exit {code})")
+        (f", {len(skipped)} skipped: unsupported" if skipped else "") + f" (exit {code})")
     return code
+
+
+def _skip(scene, renderer, depth, e):
+    from .check import Skipped
+
+    return Skipped(str(scene), renderer.label, depth, str(e))
 
 
 def _check_margin(values: list[float | None] | None):

@@ -15,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +30,13 @@ from .renderers import MitsubaRenderer
 from .scenefile import ScenePlan, plan
 from .stats import block_means
 
-CACHE = Path(".cache/references")
+CACHE_VARIABLE = "VALIDATE_CACHE"     # where references are cached, if set (validate check --cache overrides it)
+CACHE = Path(".cache/references")    # else: relative to the working folder
+
+
+def cache_folder() -> Path:
+    """The reference cache: $VALIDATE_CACHE if set, else CACHE."""
+    return Path(os.environ[CACHE_VARIABLE]) if os.environ.get(CACHE_VARIABLE) else CACHE
 
 
 @dataclass
@@ -73,15 +80,17 @@ def load(path: Path, key: str) -> Reference | None:
 
 
 def reference(scene_file: str | Path, max_depth: int, size: int, passes: int = 16, spp: int = 64,
-              cache: Path = CACHE) -> Reference:
+              cache: Path | None = None) -> Reference:
     """Mitsuba's `path` at `max_depth`, `size` x `size`, `passes` x `spp` samples per pixel; cached."""
     scene_plan = plan(scene_file, {"width": str(size), "height": str(size)}, max_depth=max_depth)
     return mitsuba_reference(scene_plan, passes, spp, cache)
 
 
-def mitsuba_reference(scene_plan: ScenePlan, passes: int, spp: int, cache: Path = CACHE) -> Reference:
-    """Mitsuba's `path` on the planned scene, `passes` x `spp` samples per pixel; cached under a key of the
-    scene's content (every file it names), the plan, the samples and Mitsuba's version."""
+def mitsuba_reference(scene_plan: ScenePlan, passes: int, spp: int, cache: Path | None = None) -> Reference:
+    """Mitsuba's `path` on the planned scene, `passes` x `spp` samples per pixel; cached (in `cache`, default
+    cache_folder()) under a key of the scene's content (every file it names), the plan, the samples and
+    Mitsuba's version."""
+    cache = cache_folder() if cache is None else Path(cache)
     key = scene_plan.content_key(passes=passes, spp=spp, seed=SEED, block=BLOCK, mitsuba=version())
     path = cache / (f"{scene_plan.path.stem}-d{scene_plan.max_depth}-{scene_plan.width}x{scene_plan.height}"
                     f"-{passes}x{spp}-{key}.npz")

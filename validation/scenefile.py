@@ -8,6 +8,7 @@ textures) and the settings, so that a cached result is never reused for an edite
 """
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import re
@@ -33,6 +34,7 @@ class ScenePlan:
     height: int
     max_depth: int
     params: dict[str, str] = field(default_factory=dict)   # the scene's own <default>s, overridden
+    overridden: tuple[str, ...] = ()                        # the names of params given by the check (-D)
 
     def mitsuba_xml(self) -> str:
         """The scene's XML with the film size and max_depth written into it."""
@@ -55,6 +57,34 @@ class ScenePlan:
             raise ScenePlanError(f"{self.path}: <integrator type=\"{kind}\">: the comparison uses Mitsuba's "
                                  "path integrator (or a moment integrator wrapping it)")
         _set(integrator, "integer", "max_depth", str(self.max_depth))
+        return ET.tostring(root, encoding="unicode")
+
+    def resolved_xml(self, spp: int) -> str:
+        """One self-contained Mitsuba XML (`{scene_resolved}`): mitsuba_xml() with every `$name` replaced by its
+        value and the <default>s dropped, the samples per pass written into the sampler, and every filename
+        made absolute (the <path>s dropped)."""
+        root = ET.fromstring(self.mitsuba_xml())
+        folders = [self.path.parent] + [self.path.parent / p.get("value", "") for p in root.iter("path")]
+        for node in list(root):
+            if node.tag in ("default", "path"):
+                root.remove(node)
+        for node in root.iter():
+            for key, value in node.attrib.items():
+                node.set(key, _substitute(value, self.params))
+            if node.get("name") == "filename":
+                found = next((d / node.get("value", "") for d in folders if (d / node.get("value", "")).is_file()), None)
+                if found is not None:
+                    node.set("value", str(found.resolve()))
+        sensor = _first(root, "sensor", self.path)
+        samplers = {n.get("id"): n for n in root.iter("sampler")}
+        for ref in sensor.findall("ref"):           # a sampler declared elsewhere and referenced: copied in
+            if ref.get("id") in samplers:
+                sensor[list(sensor).index(ref)] = copied = copy.deepcopy(samplers[ref.get("id")])
+                copied.attrib.pop("id")
+        sampler = sensor.find("sampler")
+        if sampler is None:
+            sampler = ET.SubElement(sensor, "sampler", {"type": "independent"})
+        _set(sampler, "integer", "sample_count", str(spp))
         return ET.tostring(root, encoding="unicode")
 
     def mitsuba_scene(self, spp: int):
@@ -81,9 +111,11 @@ class ScenePlan:
         return replace(scene, camera=replace(scene.camera, width=self.width, height=self.height))
 
     def defines(self, spp: int) -> list[str]:
-        """`-D name=value` arguments that give an external renderer this plan's settings."""
-        values = dict(self.params) | {"width": self.width, "height": self.height, "max_depth": self.max_depth,
-                                      "spp": spp}
+        """`-D name=value` arguments that give an external renderer this plan's settings: the film size, the depth,
+        the samples per pass and the scene parameters the check was given (the scene's own values are in its
+        file and in the resolved scene)."""
+        values = {k: self.params[k] for k in self.overridden} | {"width": self.width, "height": self.height,
+                                                                  "max_depth": self.max_depth, "spp": spp}
         return [f"{k}={v}" for k, v in values.items()]
 
     def content_key(self, **settings) -> str:
@@ -126,7 +158,7 @@ def plan(path: str | Path, defines: dict[str, str] | None = None, size: int | No
         raise ScenePlanError(f"max_depth must be -1 (unbounded) or at least 1, got {max_depth}")
     params |= {k: str(v) for k, v in (("width", width), ("height", height), ("max_depth", max_depth))
                if k in declared}
-    return ScenePlan(path, width, height, max_depth, params)
+    return ScenePlan(path, width, height, max_depth, params, tuple(k for k in defines if k in declared))
 
 
 def files_digest(path: str | Path) -> str:
