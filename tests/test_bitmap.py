@@ -1,5 +1,6 @@
 """Mitsuba's `bitmap` texture: texel values as Mitsuba 3.9.1 looks them up (sRGB decoded per texel before
-bilinear filtering, texel-centred, repeated or clamped, nearest; raw), and mitsuba_scenes/bitmap.xml rendered
+bilinear filtering, texel-centred, repeated, clamped or mirrored, nearest; raw; stored as the variant's
+floats), and mitsuba_scenes/bitmap.xml rendered
 by the path estimator against Mitsuba: Welch's t-test per 4x4 block and channel, Bonferroni-corrected,
 family-wise false-positive rate ALPHA per comparison; the same test failing when the image is filtered before
 its sRGB decoding."""
@@ -10,7 +11,7 @@ import tracer
 from tracer import bitmap
 from tracer.geometry import SceneGeometry
 from tracer.materials import textures
-from tracer.jit import Float
+from tracer.jit import Float, UInt32
 from validation.stats import compare_passes
 
 from .conftest import PASSES, SCENES, SIZE, SPP, mitsuba_passes, plugin_passes
@@ -22,7 +23,8 @@ SCENE = "bitmap.xml"
 IMAGE = SCENES / "textures" / "tiles.png"
 
 
-@pytest.mark.parametrize("options", [{}, {"filter_type": "nearest"}, {"wrap_mode": "clamp"}, {"raw": True}])
+@pytest.mark.parametrize("options", [{}, {"filter_type": "nearest"}, {"wrap_mode": "clamp"}, {"wrap_mode": "mirror"},
+                                     {"raw": True}, {"format": "variant"}])
 def test_lookup_is_mitsubas(tmp_path, options, mi):
     props = "".join(f'<boolean name="{k}" value="true"/>' if v is True else f'<string name="{k}" value="{v}"/>'
                     for k, v in options.items())
@@ -32,9 +34,8 @@ def test_lookup_is_mitsubas(tmp_path, options, mi):
     geo = SceneGeometry(tracer.load_scene(path))
     rng = np.random.default_rng(4)
     uv = rng.uniform(-1.5, 2.5, (300, 2)).astype(np.float32)
-    material = geo.scene.bsdfs.index(geo.scene.rectangles[0].bsdf)
-    t = [Float(np.full(len(uv), x, np.float32)) for x in np.asarray(geo.materials.textures.rows.numpy()).reshape(-1, 18)[material]]
-    ours = np.asarray(geo.materials.textures._bitmap(t, Float(uv[:, 0]), Float(uv[:, 1]), True).numpy()).T
+    index = UInt32(np.ones(len(uv), np.uint32))       # the scene's one texture
+    ours = np.asarray(geo.materials.textures.eval(index, (Float(uv[:, 0]), Float(uv[:, 1])), True).numpy()).T
     tex = mi.load_dict({"type": "bitmap", "filename": str(IMAGE), **options})
     ref = []
     for u, v in uv:

@@ -34,7 +34,7 @@ def test_parameters_are_read(tmp_path):
 
 @pytest.mark.parametrize("inner, message", [
     ('<bsdf type="normalmap"><rgb name="normalmap" value="0.5, 0.5, 1"/><bsdf type="diffuse"/></bsdf>',
-     "must be a bitmap <texture>"),
+     "must be a <texture>"),
     ('<bsdf type="normalmap">{map}</bsdf>', "normalmap wraps one bsdf"),
     ('<bsdf type="normalmap">{map}<bsdf type="twosided"><bsdf type="diffuse"/></bsdf></bsdf>',
      "normalmap around twosided, mask, blendbsdf or normalmap is not supported"),

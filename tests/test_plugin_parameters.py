@@ -75,6 +75,7 @@ VALUES = {
     "normalmap": '<texture type="bitmap" name="normalmap"><string name="filename" value="b.png"/></texture>',
     "flip_invalid_normals": '<boolean name="flip_invalid_normals" value="false"/>',
     "use_shadowing_function": '<boolean name="use_shadowing_function" value="false"/>',
+    "value": '<vector name="value" value="0.2, 0.3, 0.4"/>',
     "accel": '<boolean name="accel" value="false"/>', "texture": '<texture type="checkerboard" name="texture"/>', "intensity": '<rgb name="intensity" value="2, 3, 4"/>',
 }
 HONOURED = "honoured"
@@ -103,7 +104,7 @@ EXPECTED = {
              "flip_invalid_normals": HONOURED, "use_shadowing_function": HONOURED},
     "texture": {"color0": HONOURED, "color1": HONOURED, "to_uv": HONOURED, "filename": HONOURED, "bitmap": REFUSED,
                 "data": REFUSED, "raw": HONOURED, "filter_type": HONOURED, "wrap_mode": HONOURED, "format": REFUSED,
-                "accel": NO_EFFECT},
+                "accel": NO_EFFECT, "value": HONOURED},
     "emitter": {"radiance": HONOURED, "sampling_weight": NO_EFFECT, "to_world": NO_EFFECT,   # constant: uniform
                 "filename": HONOURED, "scale": HONOURED, "mis_compensation": NO_EFFECT, "bitmap": REFUSED,
                 "position": HONOURED, "intensity": HONOURED, "cutoff_angle": HONOURED, "beam_width": HONOURED,
@@ -158,6 +159,8 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
         if kind == "bitmap":
             p += f'<string name="filename" value="{"b.png" if param == "filename" else "a.png"}"/>'
             p = p.replace(VALUES["filename"], "") if param == "filename" else p
+        if kind == "rawconstant" and param is None:     # Mitsuba requires its value
+            p = '<float name="value" value="0.5"/>'
         body = (f'<shape type="rectangle"><bsdf type="diffuse"><texture type="{kind}" name="reflectance">{p}'
                 '</texture></bsdf></shape>')
     elif kind in ("constant", "point", "spot", "directional"):

@@ -436,11 +436,11 @@ class _Props:
         <rgb>, <spectrum>, <float>; where `textured`, also a `checkerboard` texture (inline or by <ref>)."""
         refs = [o for o in self.objects if o.attrib.get("name") == name]
         if refs:
+            if textured and (texture := self.texture(name)) is not None:
+                return texture
             self.taken.add(id(refs[0]))
             node = _resolve_ref(self.ctx, refs[0]) if refs[0].tag == "ref" else refs[0]
-            if textured and node.tag == "texture":
-                return self.ctx.built_once(node, lambda n: _texture(self.ctx, n))
-            where = "supported: <rgb>, <spectrum>, <float>" + (", a checkerboard or bitmap <texture>" if textured else "")
+            where = "supported: <rgb>, <spectrum>, <float>" + (", a <texture>" if textured else "")
             raise self.ctx.error(refs[0], f"'{name}' given by a <{node.tag}{_type_attr(node)}>: unsupported; {where}")
         child = self.values.get(name)
         if child is not None and child.tag == "spectrum" and unbounded:
@@ -448,6 +448,25 @@ class _Props:
             return _property_value(self.ctx, child, emitter=False, unbounded=True)
         value = self.get(name, default, COLOUR_TAGS)
         return np.broadcast_to(np.asarray(value, float), 3).copy()
+
+    def texture(self, name: str):
+        """The texture (materials.textures) given for parameter `name` (inline or by <ref>), built once and
+        marked used; None where the parameter is not given by a <texture>."""
+        refs = [o for o in self.objects if o.attrib.get("name") == name]
+        node = (_resolve_ref(self.ctx, refs[0]) if refs[0].tag == "ref" else refs[0]) if refs else None
+        if node is None or node.tag != "texture":
+            return None
+        self.taken.add(id(refs[0]))
+        return self.ctx.built_once(node, lambda n: _texture(self.ctx, n))
+
+    def scalar(self, name: str, default: float, textured: bool = True):
+        """A float parameter (<float> or <integer>) or, where `textured`, a <texture> that gives it per point:
+        (value, texture or None); a texture's value is `default`."""
+        texture = self.texture(name) if textured else None
+        if texture is not None:
+            self.read.add(name)
+            return float(default), texture
+        return float(self.get(name, default, ("float", "integer"))), None
 
     def children(self, *tags: str) -> list[Node]:
         """Child objects of the given element types, references resolved; marked used."""

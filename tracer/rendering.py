@@ -168,7 +168,8 @@ def make_plan(scene: Scene, spp: int, estimator: PathEstimator | BranchingEstima
 
 def scene_bytes(scene: Scene) -> int:
     """tracer.plan's estimate of the memory the scene's arrays take: its mesh triangles and texels."""
-    images = [b.texture.image for b in scene.bsdfs if getattr(b.texture, "image", None) is not None]
+    textures = {id(t): t for b in scene.bsdfs for t in b.every_texture()}
+    images = [t.image for t in textures.values() if getattr(t, "image", None) is not None]
     if scene.envmap is not None:
         images.append(scene.envmap.image)
     texels = sum(image.shape[0] * image.shape[1] for image in images)

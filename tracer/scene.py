@@ -121,15 +121,14 @@ class Scene:
         split = ("dielectric", "thindielectric")
         for b in self.bsdfs:
             kinds = [b.kind] + ([b.blend[1].kind] if b.blend is not None else [])
-            wrapper = "blendbsdf" if b.blend is not None else "mask" if b.opacity < 1 else None
+            wrapper = "blendbsdf" if b.blend is not None else "mask" if b.masked else None
             if estimator == "report" and wrapper and any(k in split for k in kinds):
                 out.append(f"{self.path}: the report estimator does not render a '{wrapper}' of "
                            f"'{next(k for k in kinds if k in split)}'; use --estimator path")
                 break
-        if estimator == "report" and any(b.texture is not None or b.normalmap is not None for b in self.bsdfs):
+        if estimator == "report" and any(b.every_texture() for b in self.bsdfs):
             out.append(f"{self.path}: the report estimator does not render textures (checkerboard, bitmap, "
-                       "normalmap); "
-                       "use --estimator path")
+                       "rawconstant, normalmap); use --estimator path")
         return out
 
     @property

@@ -1,5 +1,5 @@
 """Mitsuba's `blendbsdf`: f = (1 - weight) f0 + weight f1 of two nested BSDFs, sampled by the second with
-probability weight. The dispatcher applies it to any two kinds (materials.dispatch.SurfaceBSDF)."""
+probability weight (a float or a texture, clipped to [0, 1]). The dispatcher applies it to any two kinds (materials.dispatch.SurfaceBSDF)."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -11,7 +11,7 @@ PLUGINS = {"blendbsdf": ("weight",)}
 
 def from_xml(ctx, props, node) -> BSDF:
     inner = props.children("bsdf")
-    weight = props.get("weight", 0.5, ("float", "integer"))
+    weight, texture = props.scalar("weight", 0.5)
     props.finish()
     if len(inner) != 2:
         raise ctx.error(node, "blendbsdf blends two bsdfs")
@@ -19,10 +19,10 @@ def from_xml(ctx, props, node) -> BSDF:
         raise ctx.error(props.values.get("weight", node), f"weight must lie in [0, 1], got {weight}")
     first, second = (ctx.bsdf(b) for b in inner)
     for child, part in zip(inner, (first, second)):
-        if part.blend is not None or part.opacity < 1.0 or part.normalmap is not None:
+        if part.blend is not None or part.masked or part.normalmap is not None:
             raise ctx.error(child, "blendbsdf blends plain bsdfs (no blendbsdf, mask or normalmap inside; a mask "
                                    "may wrap the blendbsdf)")
     if first.twosided != second.twosided:
         raise ctx.error(node, "blendbsdf's two bsdfs must both be twosided or both not (wrap the blendbsdf "
                               "in twosided instead)")
-    return replace(first, blend=(float(weight), second))
+    return replace(first, blend=(float(weight), second)).with_texture("weight", texture)

@@ -67,13 +67,13 @@ estimator's N shadow rays and M sampled directions. Host fields the kind needs g
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import drjit as dr
 
 from ..jit import Array3f, UInt32
 from .flags import BSDFFlags, BSDFSample
-from .textures import Bitmap, Checkerboard
+from .textures import Texture
 
 __all__ = ["BSDF", "BSDFFlags", "BSDFSample", "has_flag", "reflect_local", "front", "zero_unless"]
 
@@ -125,7 +125,7 @@ class BSDF:
     ext_ior: float = 1.000277
     eta: tuple[float, float, float] = (0.0, 0.0, 0.0)
     k: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    texture: Checkerboard | Bitmap | None = None   # a diffuse reflectance given by a texture
+    texture: Texture | None = None   # the reflectance (a diffuse one) given by a texture
     specular_reflectance: tuple[float, float, float] = (1.0, 1.0, 1.0)   # plastic's specular layer
     nonlinear: bool = False                                              # plastic's internal scattering model
     specular_transmittance: tuple[float, float, float] = (1.0, 1.0, 1.0)  # roughdielectric's
@@ -136,9 +136,39 @@ class BSDF:
     back: BSDF | None = None        # a two-sided material's back, where it differs from the front (this BSDF)
     opacity: float = 1.0            # a `mask`: the probability of scattering by this BSDF (else the ray passes)
     blend: tuple[float, BSDF] | None = None   # a `blendbsdf`: (w, the second material); f = (1 - w) f + w f2
-    normalmap: Bitmap | None = None   # a `normalmap` around it: the tilted normals (materials.normalmap)
+    normalmap: Texture | None = None  # a `normalmap` around it: the tilted normals (materials.normalmap)
     normalmap_flip: bool = True       # its flip_invalid_normals
     normalmap_shadowing: bool = True  # its use_shadowing_function
+    textures: tuple[tuple[str, Texture], ...] = ()   # other parameters given by textures: (slot, texture)
+
+    def slot_textures(self) -> list[tuple[str, Texture]]:
+        """Every parameter a texture drives, by slot: 'reflectance', 'normalmap' and the `textures`."""
+        named = [("reflectance", self.texture), ("normalmap", self.normalmap)]
+        return [(slot, t) for slot, t in named if t is not None] + list(self.textures)
+
+    def every_texture(self) -> list[Texture]:
+        """The textures of this material, its back and its blend's second material."""
+        parts = [self] + [b for b in (self.back, self.blend[1] if self.blend else None) if b is not None]
+        return [t for p in parts for t in ([t for _, t in p.slot_textures()] if p is self else p.every_texture())]
+
+    def texture_of(self, slot: str) -> Texture | None:
+        return dict(self.slot_textures()).get(slot)
+
+    def with_texture(self, slot: str, texture: Texture | None) -> BSDF:
+        """This material with `slot` given by `texture` (None: unchanged)."""
+        if texture is None:
+            return self
+        return replace(self, textures=tuple((s, t) for s, t in self.textures if s != slot) + ((slot, texture),))
+
+    @property
+    def masked(self) -> bool:
+        """A `mask` with an opacity below 1 somewhere."""
+        return self.opacity < 1.0 or self.texture_of("opacity") is not None
+
+    @property
+    def isotropic(self) -> bool:
+        """Roughness the same along both tangents (the frame's rotation about the normal does not matter)."""
+        return self.alpha_u == self.alpha_v and self.texture_of("alpha_u") is self.texture_of("alpha_v")
 
     @property
     def perfect_mirror(self) -> bool:

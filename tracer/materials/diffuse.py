@@ -44,7 +44,7 @@ def albedo(rho: Array3f) -> Array3f:
 def from_xml(ctx, props, node) -> BSDF:
     rho = props.colour("reflectance", 0.5, textured=True)
     props.finish()
+    check_unit_interval(ctx, node, "diffuse reflectance", rho)
     if not isinstance(rho, np.ndarray):
         return BSDF("diffuse", (0.0, 0.0, 0.0), texture=rho)
-    check_unit_interval(ctx, node, "diffuse reflectance", rho)
     return BSDF("diffuse", rgb(rho))

@@ -110,7 +110,7 @@ class SurfaceBSDF:
         if tables.any_normalmap:
             self._tilt(tables, surf, self._local(wi), active)
         wi = self._local(wi)
-        self.opacity = tables.opacity(surf.material, active) if tables.any_mask else None   # the mask's own
+        self.opacity = tables.opacity(surf, active) if tables.any_mask else None   # the mask's own
         self.flip = None                   # lanes on the back of a two-sided material (None: no such material)
         if tables.any_twosided:
             self.flip = tables.twosided(surf.material, active) & (wi.z < 0)
@@ -121,7 +121,7 @@ class SurfaceBSDF:
         self.parts = [_Kinds(tables, surf, wi, active)]
         self.blend = None                  # the second material's weight w (None: no blend in the scene)
         if tables.any_blend:
-            self.blend, second = tables.blend(surf.material, active)
+            self.blend, second = tables.blend(surf, active)
             self.parts.append(_Kinds(tables, replace(surf, material=second), wi, active))
         self.kind = self.parts[0].kind
         self.smooth = self._either(lambda m: m.FLAGS & SMOOTH)

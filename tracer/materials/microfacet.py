@@ -196,11 +196,12 @@ def _beckmann_visible_slopes(cos_theta_i: Float, u) -> tuple[Float, Float]:
     return dr.erfinv(x), dr.erfinv(2.0 * u1 - 1.0)
 
 
-def from_row(bsdfs: list, kind: str, row: list[Float]) -> Microfacet:
+def from_row(tables, kind: str, row: list[Float], surf=None, active: Bool = True) -> Microfacet:
     """The distribution of each lane's material from its table row [ggx, sample_visible, alpha_u, alpha_v]
-    (see `row`). A choice every material of the kind shares is a Python bool, so only its branch is traced;
-    where all are isotropic alpha_v is alpha_u (Mitsuba's isotropic sampling of all normals)."""
-    ours = [b for b in bsdfs if b.kind == kind]
+    (see `row`), a roughness given by a texture evaluated at `surf` (tables.textured_value). A choice every
+    material of the kind shares is a Python bool, so only its branch is traced; where all are isotropic
+    alpha_v is alpha_u (Mitsuba's isotropic sampling of all normals)."""
+    ours = [b for b in tables.bsdfs if b.kind == kind]
 
     def flag(test, column: Float):
         values = {bool(test(b)) for b in ours}
@@ -208,9 +209,13 @@ def from_row(bsdfs: list, kind: str, row: list[Float]) -> Microfacet:
 
     ggx = flag(lambda b: b.distribution == "ggx", row[0])
     visible = flag(lambda b: b.sample_visible, row[1])
-    if all(b.alpha_u == b.alpha_v for b in ours):
-        return microfacet(ggx, row[2], None, visible)
-    return microfacet(ggx, row[2], row[3], visible)
+    alpha_u, alpha_v = row[2], row[3]
+    if surf is not None:
+        alpha_u, alpha_v = (tables.textured_value(slot, surf, a, active) for slot, a in (("alpha_u", alpha_u),
+                                                                                         ("alpha_v", alpha_v)))
+    if all(b.isotropic for b in ours):
+        return microfacet(ggx, alpha_u, None, visible)
+    return microfacet(ggx, alpha_u, alpha_v, visible)
 
 
 def row(b) -> list[float]:

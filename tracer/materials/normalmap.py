@@ -11,10 +11,10 @@ from __future__ import annotations
 from dataclasses import replace
 
 import drjit as dr
+import numpy as np
 
 from ..jit import Array3f, Float
 from .bsdf import BSDF
-from .textures import Bitmap
 
 PLUGINS = {"normalmap": ("normalmap", "flip_invalid_normals", "use_shadowing_function")}
 
@@ -27,10 +27,10 @@ def from_xml(ctx, props, node) -> BSDF:
     props.finish()
     if len(inner) != 1:
         raise ctx.error(node, "normalmap wraps one bsdf (as in Mitsuba)")
-    if not isinstance(texture, Bitmap):
-        raise ctx.error(node, "normalmap: 'normalmap' must be a bitmap <texture> (supported: bitmap)")
+    if isinstance(texture, np.ndarray):
+        raise ctx.error(node, "normalmap: 'normalmap' must be a <texture> (as in Mitsuba)")
     nested = ctx.bsdf(inner[0])
-    if nested.twosided or nested.opacity < 1.0 or nested.normalmap is not None or nested.blend is not None:
+    if nested.twosided or nested.masked or nested.normalmap is not None or nested.blend is not None:
         raise ctx.error(inner[0], "normalmap around twosided, mask, blendbsdf or normalmap is not supported; "
                                   "supported: normalmap around one BSDF of any other kind")
     return replace(nested, normalmap=texture, normalmap_flip=bool(flip), normalmap_shadowing=bool(shadowing))

@@ -32,7 +32,8 @@ def read_layers(ctx, props, node) -> dict:
     nonlinear = props.get("nonlinear", False, ("boolean",))
     props.finish()
     texture = None if isinstance(rho, np.ndarray) else rho
-    if texture is not None:     # its mean steers only which layer is sampled, not the estimate
+    if texture is not None:
+        check_unit_interval(ctx, node, "diffuse_reflectance", texture)     # its mean steers only which layer is sampled, not the estimate
         rho = np.full(3, 0.5)
     for name, value in (("diffuse_reflectance", rho), ("specular_reflectance", spec)):
         check_unit_interval(ctx, node, name, value)

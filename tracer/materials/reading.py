@@ -3,6 +3,7 @@ import numpy as np
 
 from ..ior import named_conductor, named_ior
 from ..spectra import rgb
+from .textures import Checkerboard, Constant
 
 
 def read_ior(ctx, props, name: str, default: str) -> float:
@@ -16,42 +17,55 @@ def read_ior(ctx, props, name: str, default: str) -> float:
     return float(value)
 
 
-def check_unit_interval(ctx, node, name: str, value: np.ndarray) -> None:
-    """Refuses a reflectance outside [0, 1]."""
-    if np.any(value < 0) or np.any(value > 1):
+def check_unit_interval(ctx, node, name: str, value) -> None:
+    """Refuses a reflectance outside [0, 1]: a colour, or a checkerboard's or rawconstant's values (a bitmap's
+    are not checked)."""
+    if isinstance(value, (Checkerboard, Constant)):
+        lo, hi = value.bounds()
+        if lo < 0 or hi > 1:
+            raise ctx.error(node, f"{name}: the texture's values must lie in [0, 1], got {lo:g} to {hi:g}")
+    elif isinstance(value, np.ndarray) and (np.any(value < 0) or np.any(value > 1)):
         raise ctx.error(node, f"{name} must lie in [0, 1], got {rgb(value)}")
 
 
 DISTRIBUTIONS = ("beckmann", "ggx")
 
 
-def read_microfacet(ctx, props, node, anisotropic: bool = True) -> dict:
+def read_microfacet(ctx, props, node, anisotropic: bool = True, textured: bool = True) -> dict:
     """A microfacet distribution's parameters as Mitsuba reads them: `distribution` (beckmann by default),
     `alpha` (0.1) or both `alpha_u` and `alpha_v`, `sample_visible` (true). Refuses what Mitsuba refuses
     (only one of alpha_u / alpha_v, alpha with them, another distribution, negative roughness) and
     alpha_u != alpha_v where not `anisotropic` (roughplastic). alpha_u runs along the shading frame's first
-    tangent, the surface's dp/du (materials.dispatch.shading_tangents). A roughness given by a texture is
-    left unread, so the loader refuses it by name."""
+    tangent, the surface's dp/du (materials.dispatch.shading_tangents). Where `textured` (roughconductor,
+    roughdielectric), a roughness may be a texture (slots alpha_u and alpha_v, one and the same texture for
+    `alpha`): then the BSDF's `textures` hold it."""
     distribution = props.get("distribution", "beckmann", ("string",)).lower()
     if distribution not in DISTRIBUTIONS:
         raise ctx.error(props.values["distribution"], f"invalid distribution '{distribution}': must be "
                                                       "'beckmann' or 'ggx' (as in Mitsuba)")
-    given = [name for name in ("alpha_u", "alpha_v") if props.has(name)]
-    if given and props.has("alpha"):
+
+    def given(name: str) -> bool:
+        return props.has(name) or any(o.attrib.get("name") == name for o in props.objects)
+
+    named = [name for name in ("alpha_u", "alpha_v") if given(name)]
+    if named and given("alpha"):
         raise ctx.error(node, "give either alpha or alpha_u and alpha_v, not both (as in Mitsuba)")
-    if len(given) == 1:
+    if len(named) == 1:
         raise ctx.error(node, "both alpha_u and alpha_v must be given (as in Mitsuba)")
-    if given:
-        alpha_u, alpha_v = (float(props.get(n, 0.1, ("float", "integer"))) for n in ("alpha_u", "alpha_v"))
+    if named:
+        (alpha_u, tex_u), (alpha_v, tex_v) = (props.scalar(n, 0.1, textured) for n in ("alpha_u", "alpha_v"))
     else:
-        alpha_u = alpha_v = float(props.get("alpha", 0.1, ("float", "integer")))
+        alpha_u, tex_u = props.scalar("alpha", 0.1, textured)
+        alpha_v, tex_v = alpha_u, tex_u
     if min(alpha_u, alpha_v) < 0:
         raise ctx.error(node, f"roughness must not be negative, got alpha_u = {alpha_u}, alpha_v = {alpha_v}")
     if alpha_u != alpha_v and not anisotropic:
         raise ctx.error(node, f"anisotropic roughness (alpha_u = {alpha_u}, alpha_v = {alpha_v}) is not "
                               f"supported by '{props.kind}' (nor by Mitsuba)")
     visible = props.get("sample_visible", True, ("boolean",))
-    return dict(distribution=distribution, alpha_u=alpha_u, alpha_v=alpha_v, sample_visible=bool(visible))
+    textures = tuple((slot, t) for slot, t in (("alpha_u", tex_u), ("alpha_v", tex_v)) if t is not None)
+    return dict(distribution=distribution, alpha_u=alpha_u, alpha_v=alpha_v, sample_visible=bool(visible),
+                textures=textures)
 
 
 def read_complex_ior(ctx, props, node) -> tuple[np.ndarray, np.ndarray]:

@@ -52,7 +52,7 @@ def table(bsdfs: list[BSDF]) -> np.ndarray:
 
 def params(tables, surf, active: Bool) -> RoughConductorParams:
     r = tables.row(NAME, surf.material, active)
-    return RoughConductorParams(mf.from_row(tables.bsdfs, NAME, r), Array3f(*r[4:7]), Array3f(*r[7:10]),
+    return RoughConductorParams(mf.from_row(tables, NAME, r, surf, active), Array3f(*r[4:7]), Array3f(*r[7:10]),
                                 tables.reflectance(surf, active))
 
 

@@ -72,7 +72,7 @@ def table(bsdfs: list[BSDF]) -> np.ndarray:
 
 def params(tables, surf, active: Bool) -> RoughDielectricParams:
     r = tables.row(NAME, surf.material, active)
-    return RoughDielectricParams(mf.from_row(tables.bsdfs, NAME, r), r[4], Array3f(*r[5:8]), Array3f(*r[8:11]))
+    return RoughDielectricParams(mf.from_row(tables, NAME, r, surf, active), r[4], Array3f(*r[5:8]), Array3f(*r[8:11]))
 
 
 def fresnel(cos_i: Float, eta: Float) -> tuple[Float, Float, Float, Float]:

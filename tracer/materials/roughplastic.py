@@ -55,7 +55,7 @@ class RoughPlasticParams:
 
 
 def from_xml(ctx, props, node) -> BSDF:
-    distribution = read_microfacet(ctx, props, node, anisotropic=False)
+    distribution = read_microfacet(ctx, props, node, anisotropic=False, textured=False)
     layers = plastic.read_layers(ctx, props, node)
     if min(layers["int_ior"], layers["ext_ior"]) < 0 or layers["int_ior"] == layers["ext_ior"]:
         raise ctx.error(node, "the interior and exterior indices of refraction must be positive and differ "
@@ -86,7 +86,7 @@ def params(tables, surf, active: Bool) -> RoughPlasticParams:
     values, fields = tables.table(NAME)
     head = [dr.gather(Float, values, surf.material * fields + k, active) for k in range(FIELDS)]
     nonlinear = {b.nonlinear for b in tables.bsdfs if b.kind == NAME}
-    return RoughPlasticParams(mf.from_row(tables.bsdfs, NAME, head), head[4], Array3f(*head[8:11]),
+    return RoughPlasticParams(mf.from_row(tables, NAME, head), head[4], Array3f(*head[8:11]),
                               tables.reflectance(surf, active),
                               nonlinear.pop() if len(nonlinear) == 1 else head[7] > 0.5, head[5], head[6],
                               values, surf.material, fields, FIELDS)

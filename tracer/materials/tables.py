@@ -3,8 +3,6 @@ reflectance and its texture) and one table per kind (its module's `table`), gath
 table a scene's materials do not need is not built, and its code is not traced."""
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import drjit as dr
 import numpy as np
 
@@ -29,30 +27,29 @@ class MaterialTables:
         bsdfs = self.bsdfs
         self.kinds = {KIND_CODE[b.kind] for b in bsdfs} if kinds is None else set(kinds)
         self.any_normalmap = any(b.normalmap is not None for b in bsdfs)
-        self.textured = any(b.texture is not None for b in bsdfs) or self.any_normalmap
+        self._slots, textures = _slots(bsdfs)
+        self.textured = bool(self._slots)
         self.any_twosided = any(b.twosided for b in bsdfs)
         # whether a material is not invariant under rotation about the normal (anisotropic roughness, a normal
         # map in tangent space): then the shading frame follows the surface's dp/du as Mitsuba's; elsewhere any
         # frame about the normal gives the same image
-        self.oriented = any(b.alpha_u != b.alpha_v or b.normalmap is not None for b in bsdfs)
+        self.oriented = any(not b.isotropic or b.normalmap is not None for b in bsdfs)
         rows = bsdfs or [BSDF("diffuse", (0.0, 0.0, 0.0))]   # an empty scene still gathers (masked off)
         self._reflectance = Float(np.array([b.reflectance for b in rows]).ravel())
         self._kind = UInt32([KIND_CODE[b.kind] for b in rows])
         self._twosided = UInt32([int(b.twosided) for b in rows])
         self.any_back = bool(backs)
-        self.any_mask = any(b.opacity < 1.0 for b in rows)
+        self.any_mask = any(b.masked for b in rows)
         self.any_blend = bool(seconds)
         self._blend_weight = Float([b.blend[0] if b.blend is not None else 0.0 for b in rows])
         self._blend_second = UInt32([bsdfs.index(b.blend[1]) if b.blend is not None else i
                                      for i, b in enumerate(rows)])
         self._opacity = Float([b.opacity for b in rows])
         self._back = UInt32([bsdfs.index(b.back) if b.back is not None else i for i, b in enumerate(rows)])
-        self.textures = TextureTables(rows) if self.textured else None
+        self.textures = TextureTables(textures) if self.textured else None
         if self.any_normalmap:
-            self.normalmaps = TextureTables([SimpleNamespace(texture=b.normalmap) for b in rows])
             self._normalmap_flags = Float(np.array([[b.normalmap_flip, b.normalmap_shadowing] for b in rows],
                                                    float).ravel())
-            self._has_normalmap = UInt32([int(b.normalmap is not None) for b in rows])
         self._tables: dict[str, tuple[Float, int]] = {}
         for code in sorted(self.kinds):
             module = KINDS[code]
@@ -68,16 +65,34 @@ class MaterialTables:
 
     def reflectance(self, surf, active: Bool) -> Array3f:
         """A material's reflectance at a surface point: its texture's where it has one."""
-        rho = dr.gather(Array3f, self._reflectance, surf.material, active)
-        if not self.textured:
-            return rho
-        return self.textures.reflectance(surf.material, surf.uv, rho, active)
+        return self.textured_value("reflectance", surf, dr.gather(Array3f, self._reflectance, surf.material, active),
+                                   active)
+
+    def has_texture(self, slot: str) -> bool:
+        """Whether some material of the scene gives parameter `slot` by a texture."""
+        return slot in self._slots
+
+    def texture_index(self, slot: str, surf, active: Bool) -> UInt32:
+        """Each lane's material's texture for `slot` (0: none)."""
+        return dr.gather(UInt32, self._slots[slot], surf.material, active)
+
+    def textured_value(self, slot: str, surf, value, active: Bool):
+        """Parameter `slot` at the surface point: its texture's value where the material has one (a colour
+        where `value` is an Array3f, else a float, Mitsuba's eval_1), `value` elsewhere."""
+        if slot not in self._slots:
+            return value
+        index = self.texture_index(slot, surf, active)
+        has = index > 0
+        if isinstance(value, Array3f):
+            return dr.select(has, self.textures.eval(index, surf.uv, active & has), value)
+        return dr.select(has, self.textures.eval_1(index, surf.uv, active & has), value)
 
     def normalmap(self, surf, active: Bool) -> tuple[Array3f, Bool, Bool, Bool]:
         """A normal map's tilted normal 2 c - 1 at the surface point (0, 0, 1 for materials without one), and
         per lane whether the material has one and its flip_invalid_normals and use_shadowing_function."""
-        m = self.normalmaps.reflectance(surf.material, surf.uv, Array3f(0.5, 0.5, 1.0), active) * 2.0 - 1.0
-        has = dr.gather(UInt32, self._has_normalmap, surf.material, active) > 0
+        index = self.texture_index("normalmap", surf, active)
+        has = index > 0
+        m = dr.select(has, self.textures.eval(index, surf.uv, active & has), Array3f(0.5, 0.5, 1.0)) * 2.0 - 1.0
         flip = dr.gather(Float, self._normalmap_flags, surf.material * 2, active) > 0
         shadow = dr.gather(Float, self._normalmap_flags, surf.material * 2 + 1, active) > 0
         return m, has, flip, shadow
@@ -93,14 +108,16 @@ class MaterialTables:
             return material
         return dr.gather(UInt32, self._back, material, active)
 
-    def opacity(self, material: UInt32, active: Bool) -> Float:
-        """A `mask`ed material's opacity (1 elsewhere)."""
-        return dr.gather(Float, self._opacity, material, active)
+    def opacity(self, surf, active: Bool) -> Float:
+        """A `mask`ed material's opacity, clipped to [0, 1] as Mitsuba's (1 elsewhere)."""
+        value = self.textured_value("opacity", surf, dr.gather(Float, self._opacity, surf.material, active), active)
+        return dr.clip(value, 0.0, 1.0)
 
-    def blend(self, material: UInt32, active: Bool) -> tuple[Float, UInt32]:
-        """A `blendbsdf`'s weight w and second material (0 and the material itself elsewhere)."""
-        return (dr.gather(Float, self._blend_weight, material, active),
-                dr.gather(UInt32, self._blend_second, material, active))
+    def blend(self, surf, active: Bool) -> tuple[Float, UInt32]:
+        """A `blendbsdf`'s weight w, clipped to [0, 1] as Mitsuba's, and its second material (0 and the
+        material itself elsewhere)."""
+        w = self.textured_value("weight", surf, dr.gather(Float, self._blend_weight, surf.material, active), active)
+        return dr.clip(w, 0.0, 1.0), dr.gather(UInt32, self._blend_second, surf.material, active)
 
     def has_table(self, kind: str) -> bool:
         return kind in self._tables
@@ -113,3 +130,16 @@ class MaterialTables:
         """Each field of the material's row in the kind's table (its module's `table`)."""
         values, fields = self._tables[kind]
         return [dr.gather(Float, values, material * fields + k, active) for k in range(fields)]
+
+
+def _slots(bsdfs: list[BSDF]) -> tuple[dict[str, UInt32], list]:
+    """Per textured slot, each material's texture (1 + its index in the list of the scene's distinct
+    textures; 0: none), and that list."""
+    textures: list = []
+    columns: dict[str, list[int]] = {}
+    for i, b in enumerate(bsdfs):
+        for slot, t in b.slot_textures():
+            if not any(t is u for u in textures):
+                textures.append(t)
+            columns.setdefault(slot, [0] * len(bsdfs))[i] = 1 + next(k for k, u in enumerate(textures) if u is t)
+    return {slot: UInt32(column) for slot, column in columns.items()}, textures

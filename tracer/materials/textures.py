@@ -1,5 +1,9 @@
-"""Mitsuba's `checkerboard` and `bitmap` textures as a diffuse reflectance: their host description, their
-per-material table and the lookup in the kernel (tracer/bitmap.py reads the images)."""
+"""Mitsuba's textures: `checkerboard`, `bitmap` and `rawconstant`, their host description, one table over the
+scene's textures and the lookups in the kernel (tracer/bitmap.py reads the images). A material parameter
+that a texture drives names it by slot (materials.bsdf.BSDF.slot_textures); the kernel evaluates it as a
+colour (`eval`, Mitsuba's eval_3) or as a float (`eval_1`: the colour's luminance, as Mitsuba's eval_1 of a
+three-channel texture, and the value itself for a grey one). As in Mitsuba 3.9.1, a checkerboard read as a
+float shows color0 on the squares where read as a colour it shows color1 (TextureTables.eval)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -8,24 +12,31 @@ import drjit as dr
 import numpy as np
 
 from ..bitmap import BitmapError, read_bitmap
-from ..jit import Array3f, Bool, Float, UInt32
+from ..jit import Array2f, Array3f, Bool, Float, UInt32
 from ..spectra import rgb
-from .reading import check_unit_interval
 
 PLUGINS = {"checkerboard": ("color0", "color1", "to_uv"),
-           "bitmap": ("filename", "bitmap", "data", "raw", "filter_type", "wrap_mode", "to_uv", "format", "accel")}
-FIELDS = 18         # per material: kind, two colours, to_uv's two rows, a bitmap's offset, size and modes
+           "bitmap": ("filename", "bitmap", "data", "raw", "filter_type", "wrap_mode", "to_uv", "format", "accel"),
+           "rawconstant": ("value",)}
+FIELDS = 18         # per texture: kind, two colours, to_uv's two rows, a bitmap's offset, size and modes
 IDENTITY_UV = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+LUMINANCE = (0.212671, 0.715160, 0.072169)   # Mitsuba's luminance() of linear sRGB (CIE Y)
+CHECKERBOARD, BITMAP, CONSTANT = 1, 2, 3     # a texture's kind in its row (0: none)
+REPEAT, CLAMP, MIRROR = 0, 1, 2              # a bitmap's wrap modes
 
 
 @dataclass(frozen=True)
 class Checkerboard:
     """Mitsuba's `checkerboard` texture: with (u', v') = to_uv (u, v), color0 where the fractional parts of u'
-    and v' are both above 1/2 or both not, color1 elsewhere."""
+    and v' are both above 1/2 or both not, color1 elsewhere. Its colours are not bounded (a reflectance's
+    reader bounds them: `check_unit_interval`)."""
 
     color0: tuple[float, float, float] = (0.4, 0.4, 0.4)
     color1: tuple[float, float, float] = (0.2, 0.2, 0.2)
     to_uv: tuple[tuple[float, float, float], ...] = IDENTITY_UV
+
+    def bounds(self) -> tuple[float, float]:
+        return min(*self.color0, *self.color1), max(*self.color0, *self.color1)
 
 
 @dataclass(frozen=True, eq=False)
@@ -35,17 +46,38 @@ class Bitmap:
     image: np.ndarray                      # (H, W, 3) float32
     to_uv: tuple[tuple[float, float, float], ...] = IDENTITY_UV
     bilinear: bool = True
-    repeat: bool = True                    # else clamp
+    wrap: int = REPEAT
+
+    def bounds(self) -> tuple[float, float]:
+        return float(self.image.min()), float(self.image.max())
 
 
-def from_xml(ctx, props, node) -> Checkerboard | Bitmap:
-    if node.attrib.get("type") == "bitmap":
+@dataclass(frozen=True)
+class Constant:
+    """Mitsuba's `rawconstant`: one value everywhere, taken as given (no colour conversion, no bounds)."""
+
+    value: tuple[float, float, float]
+
+    def bounds(self) -> tuple[float, float]:
+        return min(self.value), max(self.value)
+
+
+Texture = Checkerboard | Bitmap | Constant
+
+
+def from_xml(ctx, props, node) -> Texture:
+    kind = node.attrib.get("type")
+    if kind == "bitmap":
         return _bitmap(ctx, node, props)
-    colours = [props.colour(name, d) for name, d in (("color0", 0.4), ("color1", 0.2))]
+    if kind == "rawconstant":
+        if not props.has("value"):
+            raise ctx.error(node, "rawconstant needs a 'value' (as in Mitsuba)")
+        value = props.get("value", 0.0, ("float", "integer", "vector"))
+        props.finish()
+        return Constant(rgb(np.broadcast_to(np.asarray(value, float), 3)))
+    colours = [props.colour(name, d, unbounded=True) for name, d in (("color0", 0.4), ("color1", 0.2))]
     m = props.get("to_uv", np.eye(4), ("transform",))
     props.finish()
-    for name, c in zip(("color0", "color1"), colours):
-        check_unit_interval(ctx, node, name, c)
     return Checkerboard(rgb(colours[0]), rgb(colours[1]), _to_uv(m))
 
 
@@ -55,10 +87,15 @@ def _to_uv(m: np.ndarray) -> tuple[tuple[float, float, float], ...]:
     return tuple(tuple(float(x) for x in row) for row in m[np.ix_([0, 1, 3], [0, 1, 3])])
 
 
+# `format`: the texels' storage; `variant` (float32) holds exactly what `auto` holds for the 8-bit and float32
+# images the tracer reads, so both are honoured; float16 and uint8 would round them and are refused
+FORMATS = ("auto", "variant")
+
+
 def _bitmap(ctx, node, props) -> Bitmap:
     filename = props.get("filename", None, ("string",))
     raw = props.get("raw", False, ("boolean",))
-    choices = {"filter_type": ("bilinear", "nearest"), "wrap_mode": ("repeat", "clamp"), "format": ("auto",)}
+    choices = {"filter_type": ("bilinear", "nearest"), "wrap_mode": ("repeat", "clamp", "mirror"), "format": FORMATS}
     modes = {}
     for name, accepted in choices.items():
         modes[name] = props.get(name, accepted[0], ("string",)).lower()
@@ -76,56 +113,106 @@ def _bitmap(ctx, node, props) -> Bitmap:
         image = read_bitmap(file, raw)
     except BitmapError as e:
         raise ctx.error(node, str(e)) from None
-    return Bitmap(image, _to_uv(m), modes["filter_type"] == "bilinear", modes["wrap_mode"] == "repeat")
+    return Bitmap(image, _to_uv(m), modes["filter_type"] == "bilinear",
+                  choices["wrap_mode"].index(modes["wrap_mode"]))
 
 
 class TextureTables:
-    """Per material its texture (kind 0: none, 1: checkerboard, 2: bitmap) and every bitmap's texels."""
+    """One row per texture (row 0: none) and every bitmap's texels; a texture is named by its row."""
 
-    def __init__(self, materials: list):
-        rows = np.zeros((len(materials), FIELDS))
+    def __init__(self, textures: list[Texture]):
+        rows = np.zeros((len(textures) + 1, FIELDS))
         texels = [np.zeros(3, np.float32)]
         offset = 1
-        for i, b in enumerate(materials):
-            t = b.texture
+        for i, t in enumerate(textures, start=1):
             if isinstance(t, Checkerboard):
-                rows[i, :13] = [1.0, *t.color0, *t.color1, *np.asarray(t.to_uv)[:2].ravel()]
-            elif isinstance(t, Bitmap):
+                rows[i, :13] = [CHECKERBOARD, *t.color0, *t.color1, *np.asarray(t.to_uv)[:2].ravel()]
+            elif isinstance(t, Constant):
+                rows[i, :4] = [CONSTANT, *t.value]
+            else:
                 h, w = t.image.shape[:2]
-                rows[i] = [2.0, 0, 0, 0, 0, 0, 0, *np.asarray(t.to_uv)[:2].ravel(), offset, w, h, t.bilinear, t.repeat]
+                rows[i] = [BITMAP, 0, 0, 0, 0, 0, 0, *np.asarray(t.to_uv)[:2].ravel(), offset, w, h, t.bilinear, t.wrap]
                 texels.append(t.image.ravel())
                 offset += h * w
         self.rows = Float(rows.ravel())
         self.texels = Float(np.concatenate(texels))
-        self.bitmaps = any(isinstance(b.texture, Bitmap) for b in materials)
+        self.kinds = {CHECKERBOARD if isinstance(t, Checkerboard) else CONSTANT if isinstance(t, Constant) else BITMAP
+                      for t in textures}
 
-    def reflectance(self, material: UInt32, uv: tuple[Float, Float], rho: Array3f, active: Bool) -> Array3f:
-        """The texture's value at uv where the material has one (rho elsewhere)."""
-        t = [dr.gather(Float, self.rows, material * FIELDS + k, active) for k in range(FIELDS)]
+    def _row(self, index: UInt32, active: Bool) -> list[Float]:
+        return [dr.gather(Float, self.rows, index * FIELDS + k, active) for k in range(FIELDS)]
+
+    @staticmethod
+    def _uv(t: list[Float], uv: tuple[Float, Float]) -> tuple[Float, Float]:
         u, v = uv
-        tu = dr.fma(t[7], u, dr.fma(t[8], v, t[9]))
-        tv = dr.fma(t[10], u, dr.fma(t[11], v, t[12]))
+        return dr.fma(t[7], u, dr.fma(t[8], v, t[9])), dr.fma(t[10], u, dr.fma(t[11], v, t[12]))
+
+    def eval(self, index: UInt32, uv: tuple[Float, Float], active: Bool, as_float: bool = False) -> Array3f:
+        """Texture `index`'s colour at texture coordinates uv (index > 0). `as_float`: the colour eval_1 takes
+        the luminance of, which for a checkerboard is the other square's (Mitsuba 3.9.1's eval_1 picks color0
+        where the fractional parts of u' and v' are on different sides of 1/2, its eval where on the same)."""
+        t = self._row(index, active)
+        tu, tv = self._uv(t, uv)
         first = (tu - dr.floor(tu) > 0.5) == (tv - dr.floor(tv) > 0.5)
-        texture = dr.select(first, Array3f(t[1], t[2], t[3]), Array3f(t[4], t[5], t[6]))
-        if self.bitmaps:
-            texture = dr.select(t[0] > 1.5, self._bitmap(t, tu, tv, active & (t[0] > 1.5)), texture)
-        return dr.select(t[0] > 0, texture, rho)
+        if as_float:
+            first = ~first
+        value = Array3f(t[1], t[2], t[3])
+        if CHECKERBOARD in self.kinds:
+            value = dr.select(first | (t[0] != CHECKERBOARD), value, Array3f(t[4], t[5], t[6]))
+        if BITMAP in self.kinds:
+            bitmap = t[0] == BITMAP
+            value = dr.select(bitmap, self._bitmap(t, tu, tv, active & bitmap), value)
+        return value
 
-    def _bitmap(self, t: list[Float], u: Float, v: Float, active: Bool) -> Array3f:
-        """A bitmap texture's texels around (u, v), filtered and wrapped (tracer/bitmap.py)."""
-        offset, w, h, bilinear, repeat = t[13], t[14], t[15], t[16] > 0, t[17] > 0
+    def eval_1(self, index: UInt32, uv: tuple[Float, Float], active: Bool) -> Float:
+        """Texture `index` as a float: its colour's luminance (exact for a grey one)."""
+        return luminance(self.eval(index, uv, active, as_float=True))
 
-        def wrap(i: Float, n: Float) -> UInt32:
-            return UInt32(dr.select(repeat, i - n * dr.floor(i / n), dr.clip(i, 0.0, n - 1.0)))
+    def grad_1(self, index: UInt32, uv: tuple[Float, Float], active: Bool) -> Array2f:
+        """d eval_1 / d(u, v): as Mitsuba's eval_1_grad, the derivative of a bitmap's bilinear interpolation
+        of its four texels' luminances (to_uv's linear part applied by its transpose); 0 for the other
+        kinds (piecewise constant) and for nearest-neighbour lookups."""
+        t = self._row(index, active)
+        tu, tv = self._uv(t, uv)
+        active = active & (t[0] == BITMAP) & (t[16] > 0)
+        (f00, f10, f01, f11), (wx, wy) = self._fetch(t, tu, tv, active)
+        f00, f10, f01, f11 = (luminance(f) for f in (f00, f10, f01, f11))
+        w, h = t[14], t[15]
+        dx = dr.fma(1.0 - wy, f10 - f00, wy * (f11 - f01))
+        dy = dr.fma(1.0 - wx, f01 - f00, wx * (f11 - f10))
+        du = (t[7] * dx + t[10] * dy) * w      # Mitsuba scales by the resolution after the transpose
+        dv = (t[8] * dx + t[11] * dy) * h
+        return dr.select(active, Array2f(du, dv), Array2f(0.0))
+
+    def _fetch(self, t: list[Float], u: Float, v: Float, active: Bool):
+        """A bitmap's four texels around (u, v), wrapped (x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1),
+        and the bilinear weights toward the second column and row (0 for nearest lookups)."""
+        offset, w, h, bilinear, wrap = t[13], t[14], t[15], t[16] > 0, t[17]
+
+        def wrapped(i: Float, n: Float) -> UInt32:
+            repeat = i - n * dr.floor(i / n)
+            period = i - 2.0 * n * dr.floor(i / (2.0 * n))             # mirror: period 2n, reflected
+            mirror = dr.select(period >= n, 2.0 * n - 1.0 - period, period)
+            out = dr.select(wrap == REPEAT, repeat, dr.select(wrap == MIRROR, mirror, dr.clip(i, 0.0, n - 1.0)))
+            return UInt32(out)
 
         def texel(i: Float, j: Float) -> Array3f:
-            index = UInt32(offset) + wrap(j, h) * UInt32(w) + wrap(i, w)
+            index = UInt32(offset) + wrapped(j, h) * UInt32(w) + wrapped(i, w)
             return dr.gather(Array3f, self.texels, index, active)
 
         x = dr.select(bilinear, dr.fma(u, w, -0.5), u * w)
         y = dr.select(bilinear, dr.fma(v, h, -0.5), v * h)
         x0, y0 = dr.floor(x), dr.floor(y)
         wx, wy = dr.select(bilinear, x - x0, 0.0), dr.select(bilinear, y - y0, 0.0)
-        top = texel(x0, y0) * (1.0 - wx) + texel(x0 + 1.0, y0) * wx
-        bottom = texel(x0, y0 + 1.0) * (1.0 - wx) + texel(x0 + 1.0, y0 + 1.0) * wx
+        return (texel(x0, y0), texel(x0 + 1.0, y0), texel(x0, y0 + 1.0), texel(x0 + 1.0, y0 + 1.0)), (wx, wy)
+
+    def _bitmap(self, t: list[Float], u: Float, v: Float, active: Bool) -> Array3f:
+        """A bitmap texture's texels around (u, v), filtered and wrapped (tracer/bitmap.py)."""
+        (f00, f10, f01, f11), (wx, wy) = self._fetch(t, u, v, active)
+        top = f00 * (1.0 - wx) + f10 * wx
+        bottom = f01 * (1.0 - wx) + f11 * wx
         return top * (1.0 - wy) + bottom * wy
+
+
+def luminance(c: Array3f) -> Float:
+    return c.x * LUMINANCE[0] + c.y * LUMINANCE[1] + c.z * LUMINANCE[2]

@@ -134,9 +134,10 @@ def _place(r: MeshFile, read: tuple | MeshError) -> Mesh | MeshError:
         return read
     vertices, faces, normals, uvs = read
     a = r.args
-    if a.flip and a.bsdf.texture is not None and uvs is None:
+    textured = bool(a.bsdf.every_texture())
+    if a.flip and textured and uvs is None:
         return MeshError("flip_normals with a texture on a mesh without texture coordinates is unsupported")
-    if a.bsdf.texture is not None and uvs is not None and np.isnan(uvs[np.unique(faces)]).any():
+    if textured and uvs is not None and np.isnan(uvs[np.unique(faces)]).any():
         return MeshError("a texture on a mesh whose faces name texture coordinates for some corners only (Mitsuba "
                          "leaves the others undefined)")
     if uvs is not None and r.flip_tex_coords:
