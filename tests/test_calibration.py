@@ -58,26 +58,47 @@ def test_cross_compares_repetitions_and_every_run_with_every_run():
     assert table[-1].startswith("| all | 6 | 6/6 |") and "72/72" in table[-1]
 
 
-def test_the_equivalence_sequence_stops_at_the_first_decided_stage():
-    from validation.calibration_equivalence import STAGES, sequence
+def normal_repetition(tmp_path, sd1: float = 0.4):
+    """A calibration_equivalence.Repetition whose atoms are normal passes (standard deviation sd1 at 1 spp,
+    falling as 1/sqrt(spp)); records the atoms rendered."""
+    from validation.calibration_equivalence import Repetition
+
+    rendered = []
+
+    def render(side, stage, j, seed):
+        rendered.append((side, stage, j))
+        return np.random.default_rng([seed, j]).normal(1, sd1 / np.sqrt(2 ** j), (16, 4, 4, 3))
+    return Repetition(tmp_path / "r0.npz", render), rendered
+
+
+def test_a_pass_of_m_spp_is_composed_of_the_atoms_of_its_binary_digits(tmp_path):
+    rep, rendered = normal_repetition(tmp_path)
+    passes = rep.passes("test", 2, 5)        # 5 = 1 + 4: atoms 0 and 2, weighted 1 and 4
+    assert rendered == [("test", 2, 0), ("test", 2, 2)]
+    assert np.allclose(passes, (rep.data["test-2-0"] + 4 * rep.data["test-2-2"]) / 5)
+    again, rendered_again = normal_repetition(tmp_path)     # read back from the cache, nothing rendered
+    assert np.allclose(again.passes("test", 2, 5), passes) and rendered_again == []
+
+
+def test_the_equivalence_sequence_is_the_checks(tmp_path):
+    """The replay plans its stages as the check does (check.sequential): a noisy pilot goes on to a planned
+    stage that decides; a test side 20% too dark disagrees."""
+    from validation.calibration_equivalence import PILOT, sequence
     from validation.stats import Margin
 
-    rng = np.random.default_rng(3)
-    noise = [0.2 / 2 ** s for s in range(len(STAGES))]     # standard deviations halve from stage to stage
-    test = np.stack([rng.normal(1, sd, (16, 4, 4, 3)) for sd in noise])
-    ref = np.stack([rng.normal(1, sd, (16, 4, 4, 3)) for sd in noise])
-    margin = Margin(0.04, 0.4)
-    honest = sequence(test, ref, 0.05, margin)
-    assert honest.verdict == "equivalent" and honest.spent == 16 * sum(STAGES[:honest.stage])
-    assert sequence(test, ref, 0.05, margin, scale=0.8).verdict == "disagree"
+    rep, rendered = normal_repetition(tmp_path)
+    honest = sequence(rep, 0.05, Margin(0.04, 0.4))
+    assert honest.verdict == "equivalent" and honest.stage >= 2 and honest.spent > PILOT
+    assert {stage for _, stage, _ in rendered} == set(range(1, honest.stage + 1))
+    assert sequence(rep, 0.05, Margin(0.04, 0.4), scale=0.8).verdict == "disagree"
 
 
 def test_the_equivalence_section_replaces_its_predecessor_and_keeps_the_rest(tmp_path, monkeypatch):
     from validation import calibration_equivalence as ce
 
-    rows = [{"scene": s, "alpha": a, "block_margin": b, "bias": k, "n": 2, "equivalent": 1, "disagree": 1,
-             "inconclusive": 0, "spent_equivalent": [64], "spent_disagree": [320], "spent_inconclusive": [],
-             "seconds": 1.0} for s in ce.SCENES for a in ce.ALPHAS for b in ce.BLOCK_MARGINS for k in ce.BIASES]
+    rows = [{"renderer": r, "scene": s, "alpha": ce.ALPHA, "bias": k, "n": 2, "equivalent": 1, "disagree": 1,
+             "inconclusive": 0, "spent_equivalent": [4], "spent_disagree": [20], "spent_inconclusive": [],
+             "stages": [1, 2], "seconds_rendered": 60.0} for r in ce.RENDERERS for s in ce.SCENES for k in ce.BIASES]
     monkeypatch.setattr(ce, "measure", lambda repetitions: rows)
     monkeypatch.setattr(ce, "faults", lambda: [{"fault": "f", "spp": 256, "faulty": "disagree", "correct": "equivalent",
                                                 "faulty_mean": -0.05, "correct_detectable": [0.01] * 3}])
@@ -87,7 +108,8 @@ def test_the_equivalence_section_replaces_its_predecessor_and_keeps_the_rest(tmp
     ce.update(out, 2)
     text = out.read_text()
     assert text.count(ce.SECTION) == 1 and text.index("## Null") < text.index(ce.SECTION) < text.index("## Time")
-    assert "kept too" in text and "| 20% | 1 | 3/6" in text and "| f | disagree / equivalent | -5.00% |" in text
+    assert "kept too" in text and "| mitsuba | 1 | 3/6 [" in text and "| 1024 (1024) | 5120 (5120) | - |" in text
+    assert "| f | disagree / equivalent | -5.00% |" in text and "| path | caustic | 1 / 1 / 0 |" in text
 
 
 def test_mitsubas_criterion_passes_its_reference_and_fails_a_dim_image():

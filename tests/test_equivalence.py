@@ -12,7 +12,7 @@ from scipy import stats
 
 from tracer.scene import SceneError
 from validation import cli
-from validation.check import stages
+from validation.check import sequential, stages
 from validation.scenefile import plan
 from validation.stats import POWER, Margin, compare
 
@@ -68,9 +68,87 @@ def test_black_images_are_equivalent():
     assert compare(black, black, 1e-3, Margin(0.01, 0.1)).verdict == "equivalent"
 
 
-def test_stages_raise_the_samples_four_times_up_to_the_maximum():
-    assert stages(64, 1024) == [64, 256, 1024]
-    assert stages(64, 64) == [64] and stages(64, 1000) == [64, 256]
+def test_a_test_of_difference_escalates_in_at_most_three_stages_up_to_the_maximum():
+    assert stages(64, 1024) == [64, 256, 1024] and stages(64, 8192) == [64, 724, 8192]
+    assert stages(64, 64) == [64] and stages(64, 100) == [64, 80, 100] and stages(512, 64) == [512]
+
+
+def staged_normal(bias: float, sd64: float = 0.05, shape=(2, 2, 3)):
+    """`decide` for check.sequential on normal passes: 16 a side, standard deviation sd64 at 64 spp per pass
+    falling as 1/sqrt(spp), the test side too dark by `bias`; records each stage's (spp, level)."""
+    calls = []
+
+    def decide(stage: int, spp: int, level: float):
+        calls.append((spp, level))
+        rng = np.random.default_rng([len(calls), spp, int(1e6 * bias)] + [id(calls) % 2**31])
+        sd = sd64 * np.sqrt(64 / spp)
+        return compare(rng.normal(1 - bias, sd, (16, *shape)), rng.normal(1, sd, (16, *shape)), level,
+                       Margin(0.01, 0.2))
+    return decide, calls
+
+
+def test_the_stages_spend_the_level_and_no_more():
+    """Whichever path the sequence takes, its stages' levels sum to at most alpha (Bonferroni spending)."""
+    for bias in (0.0, 0.005, 0.01, 0.03):
+        decide, calls = staged_normal(bias)
+        seq = sequential(decide, 64, 8192, 0.05, Margin(0.01, 0.2))
+        assert seq.stages == 3 and len(calls) == seq.stage <= 3
+        assert sum(level for _, level in calls) <= 0.05 + 1e-12 and all(lv == 0.05 / 3 for _, lv in calls)
+        assert seq.spent == sum(spp for spp, _ in calls) and all(spp <= 8192 for spp, _ in calls)
+
+
+def test_the_second_stage_is_sized_for_an_unbiased_renderer():
+    """The pilot (64 spp, 5% noise per pass: equivalence within 1% far out of reach) is undecided; the second
+    stage runs at the spp the pilot planned (its needed_unbiased), rounded up to two digits."""
+    decide, calls = staged_normal(0.0)
+    pilot = decide(1, 64, 0.05 / 3)
+    calls.clear()
+    seq = sequential(decide, 64, 8192, 0.05, Margin(0.01, 0.2))
+    assert calls[0][0] == 64 and seq.stage >= 2
+    assert calls[1][0] == pytest.approx(64 * pilot.needed_unbiased, rel=0.25) and calls[1][0] > 64
+
+
+def test_a_planned_stage_has_the_power_it_was_planned_for():
+    """An unbiased renderer at the samples per pass a pilot planned is shown equivalent in about POWER of the
+    comparisons: 10 pilots (16 normal passes a side, 5% noise at 64 spp, the check's stage level 1e-3 / 3), 40
+    comparisons at each one's plan. Measured 0.79; a planner on the normal quantile instead of Student's t
+    picks too few spp (0.58), one that plans no power (the TOST passing only where the measured difference
+    stays 0) far fewer; a planner far above POWER overspends."""
+    margin, level, sd64, shape = Margin(0.01, 0.2), 1e-3 / 3, 0.05, (2, 2, 3)
+    rng = np.random.default_rng(11)
+    shown = 0
+    for _ in range(10):
+        pilot = compare(rng.normal(1, sd64, (16, *shape)), rng.normal(1, sd64, (16, *shape)), level, margin)
+        sd = sd64 / np.sqrt(pilot.needed_unbiased)
+        shown += sum(compare(rng.normal(1, sd, (16, *shape)), rng.normal(1, sd, (16, *shape)), level, margin)
+                     .verdict == "equivalent" for _ in range(40))
+    assert 0.7 <= shown / 400 <= 0.95, shown
+
+
+def test_the_planner_inverts_the_tost_for_its_power():
+    """stats.spp_factor against simulation: one TOST of standard error 1, margin 5, level 1e-3: at the factor
+    it returns, the TOST passes with probability POWER, for a true difference of 0 and of 2; a difference at
+    the margin can never be shown within it."""
+    from validation.stats import spp_factor
+
+    rng = np.random.default_rng(5)
+    q = stats.norm.isf(1e-3)
+    for true in (0.0, 2.0):
+        factor = spp_factor(np.array([true]), np.ones(1), np.array([np.inf]), np.array([5.0]), 1e-3)
+        se = 1 / np.sqrt(factor)
+        passed = np.mean(np.abs(rng.normal(true, se, 100_000)) + q * se < 5)
+        assert passed == pytest.approx(POWER, abs=0.01), (true, factor)
+    assert spp_factor(np.array([5.0]), np.ones(1), np.array([np.inf]), np.array([5.0]), 1e-3) == np.inf
+
+
+def test_a_staged_check_calls_a_bias_at_the_margin_equivalent_at_most_at_alpha():
+    """False "equivalent" of the whole sequence, planner included, at a bias equal to the margin: at most alpha
+    (0.1, 300 sequences: 45 or more has probability below 1e-3 at a rate of exactly 0.1)."""
+    false = 0
+    for _ in range(300):
+        decide, _ = staged_normal(0.01)
+        false += sequential(decide, 64, 8192, 0.1, Margin(0.01, 0.2)).comparison.verdict == "equivalent"
+    assert false < 45, false
 
 
 def moment_scene(tmp_path: Path, integrator: str = "path") -> Path:

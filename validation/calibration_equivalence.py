@@ -1,24 +1,30 @@
-"""Equivalence calibrated both ways: the sequential check with a margin (validation.check.run, TOST in
-validation.stats) on null comparisons and on renderers scaled by 1 - k x margin (k = 0.5, 1, 2: the example
-renderer's --scale), from one set of renders.
+"""Equivalence calibrated both ways: the staged check with a margin (validation.check.sequential: a pilot stage,
+then stages whose samples per pass it plans from the stage before; TOST in validation.stats) on null
+comparisons and on renderers scaled by 1 - k x margin (k = 0.5, 1, 2: the example renderer's --scale).
 
-Each repetition renders, per stage of the sequence (samples per pass x4 from stage to stage), PASSES passes
-of Mitsuba's `path` on each side with fresh seeds. A renderer scaled by s renders s times an unbiased
-renderer's passes, so the test side's block means times s are exactly its passes: every bias is measured on
-the same renders, and the null comparisons are the renders themselves. The sequence is then replayed as
-`validate check --margin` decides it (stage levels alpha / stages; stop at equivalent or disagree).
+The renderer under test is Mitsuba's `path` (a null comparison in the strict sense) or the tracer's `path`
+(a false alarm only if the tracer is unbiased); the reference is always Mitsuba's `path`. A renderer scaled
+by s renders s times an unbiased renderer's passes, so the test side's block means times s are exactly its
+passes: every bias is measured on the same renders.
 
-The grid is reduced to what this takes to render: Mitsuba against Mitsuba, the check's 32 x 32 at 16 passes,
-on the room, the Cornell box and the caustic scene, with stages of 4, 16 and 64 spp per pass: 16 times less
-than the check's default stages (64, 256, 1024), so standard errors 4 (SCALE) times larger, and margins 4 times
-larger to match: the image margin 4% here is 1% at the default budget, block margins 40% and 80% are 10% and
-20%. The rates depend on the margins only through margin / standard error, so the sequence is the check's
-with --margin 1% B at its defaults, but on passes of 4 to 64 samples, which are more skewed than the
-default's (the harder case for the t approximation). Renders are cached per scene in .cache/calibration
-(keyed by the scene's content and the design).
+The samples per pass of a planned stage depend on the stage before, so a repetition's passes are rendered on
+demand in dyadic atoms: per side and stage, 16 passes at 2^j spp for each j a plan needs; a pass of m spp is
+the spp-weighted mean of the atoms of m's binary digits (with a box filter, as these scenes use, exactly the
+mean of m independent samples per pixel, as one pass of m would be). Every
+atom is cached (.cache/calibration, one file per repetition, written atomically after each atom): an
+interrupted run resumes, a larger one extends it.
+
+The grid is reduced to what this machine renders: the check's 32 x 32 at 16 passes, on the room, the
+Cornell box and the caustic scene, with a pilot of PILOT = 4 spp per pass and at most 512: 16 (SCALE^2) times
+fewer samples than the check's defaults (64, up to 8192), so standard errors 4 times larger, and margins 4
+times larger to match (the image margin 4% here is the default budget's 1%, the block margin 80% its 20%).
+The rates depend on the margins only through margin / standard error, so the sequence is the check's with
+--margin 1% at its defaults, on passes of 4 to 512 samples, more skewed than the default's 64 to 8192 (the
+harder case for the t approximation).
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,79 +32,97 @@ import numpy as np
 from tqdm import tqdm
 
 from . import protocol
-from .calibration import CACHE, cached_repetitions, interval
-from .check import stages as plan_stages
-from .renderers import MitsubaRenderer
+from .calibration import CACHE, interval
+from .check import sequential
+from .renderers import MitsubaRenderer, TracerRenderer
 from .scenefile import plan
 from .stats import Margin, block_means, compare
 
 SCENES = {"room": "mitsuba_scenes/hexagon_room.xml", "cornell_box": "mitsuba_scenes/cornell_box.xml",
           "caustic": "mitsuba_scenes/caustic.xml"}
 MAX_DEPTH = {"room": 4, "cornell_box": -1, "caustic": -1}
-STAGES = (4, 16, 64)
-SCALE = 4                              # the check's default stages have 16 x the samples: standard errors / 4
-BIASES = (0.0, 0.5, 1.0, 2.0)          # multiples of the margin by which the test side is too dark
-IMAGE_MARGIN = 0.01 * SCALE             # 1% at the default stages
-BLOCK_MARGINS = (0.1 * SCALE, 0.2 * SCALE)   # candidates for protocol.BLOCK_MARGIN (10%, 20% at the default)
-ALPHAS = (1e-3, 0.05)
+RENDERERS = ("mitsuba", "path")         # the renderer under test; the reference is Mitsuba's path
+SCALE = 4                               # the check's default budget has SCALE^2 x the samples: standard errors / 4
+PILOT = protocol.SPP // SCALE ** 2      # the pilot's spp per pass
+MAX_SPP = protocol.MAX_SPP // SCALE ** 2
+BIASES = (0.0, 0.5, 1.0, 2.0)           # multiples of the margin by which the test side is too dark
+MARGIN = Margin(protocol.CI_MARGIN * SCALE, protocol.BLOCK_MARGIN * SCALE)   # --margin 1% 20% at the defaults
+ALPHA = 0.05                            # a level whose rates these repetitions can resolve
 SEED = 70_000
 
 
 @dataclass(frozen=True)
 class Outcome:
     verdict: str
-    stage: int          # 1-based stage that decided (the last if none did)
-    spent: int          # samples per pixel per side over the stages run (passes x spp summed)
+    stage: int          # 1-based stage that decided (or the last run)
+    spent: int          # samples per pass summed over the stages run (x passes: per pixel and side)
 
 
-def renders(scene: str, repetitions: int, cache: Path = CACHE) -> dict[str, np.ndarray]:
-    """Block means of both sides at every stage: test and ref (R, stages, K, rows, columns, 3), seconds (R,);
-    cached after every repetition, so that an interrupted run resumes and a larger one extends it."""
+class Repetition:
+    """One repetition's passes of both sides, rendered on demand in dyadic atoms and cached in `path`."""
+
+    def __init__(self, path: Path, render):
+        self.path, self.render = path, render     # render(side, stage, j, seed) -> (K, rows, columns, 3)
+        self.data = dict(np.load(path)) if path.exists() else {}
+        self.seconds = 0.0
+
+    def passes(self, side: str, stage: int, m: int) -> np.ndarray:
+        """Block means of PASSES passes at m spp: the atoms of m's binary digits, weighted by their spp."""
+        return sum(self.atom(side, stage, j) * 2 ** j for j in range(m.bit_length()) if m >> j & 1) / m
+
+    def atom(self, side: str, stage: int, j: int) -> np.ndarray:
+        name = f"{side}-{stage}-{j}"
+        if name not in self.data:
+            start = time.perf_counter()
+            seed = 100 * stage + 20 * j + (50_000 if side == "ref" else 0)   # 20 apart: 16 passes' seeds each
+            self.data[name] = self.render(side, stage, j, seed)
+            self.seconds += time.perf_counter() - start
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = self.path.with_suffix(".tmp.npz")
+            np.savez(tmp, **self.data)
+            tmp.replace(self.path)
+        return self.data[name]
+
+
+def repetition(scene: str, renderer: str, r: int, cache: Path = CACHE) -> Repetition:
     scene_plan = plan(SCENES[scene], size=protocol.SIZE, max_depth=MAX_DEPTH[scene])
-    key = scene_plan.content_key(stages=STAGES, passes=protocol.PASSES, seed=SEED, design="equivalence")
-    path = cache / f"equivalence-{scene}-{key}.npz"
-    renderer = MitsubaRenderer()
+    key = scene_plan.content_key(passes=protocol.PASSES, seed=SEED, renderer=renderer, design="atoms")
+    sides = {"test": MitsubaRenderer() if renderer == "mitsuba" else TracerRenderer(renderer), "ref": MitsubaRenderer()}
 
-    def one(r: int) -> dict[str, np.ndarray]:
-        return {name: np.stack([block_means(renderer.passes(scene_plan, protocol.PASSES, spp,
-                                                           SEED + 1000 * r + 100 * s + side),
-                                           protocol.BLOCK).astype(np.float32) for s, spp in enumerate(STAGES)])
-                for name, side in (("test", 0), ("ref", 50))}
+    def render(side: str, stage: int, j: int, seed: int) -> np.ndarray:
+        passes = sides[side].passes(scene_plan, protocol.PASSES, 2 ** j, SEED + 1_000_000 * r + seed)
+        return block_means(passes, protocol.BLOCK).astype(np.float32)
 
-    return cached_repetitions(path, repetitions, f"equivalence {scene}", one)
+    return Repetition(cache / f"equivalence-{scene}-{renderer}-{key}" / f"r{r}.npz", render)
 
 
-def sequence(test: np.ndarray, ref: np.ndarray, alpha: float, margin: Margin, scale: float = 1.0) -> Outcome:
-    """One repetition's (stages, K, rows, columns, 3) passes replayed as the check decides with a margin."""
-    level = alpha / len(STAGES)
-    spent = 0
-    for s, spp in enumerate(STAGES):
-        c = compare(test[s] * scale, ref[s], level, margin)
-        spent += protocol.PASSES * spp
-        if c.verdict != "inconclusive":
-            break
-    return Outcome(c.verdict, s + 1, spent)
+def sequence(rep: Repetition, alpha: float, margin: Margin, scale: float = 1.0) -> Outcome:
+    """One repetition replayed as `validate check --margin` decides it (check.sequential), the test side scaled."""
+    def decide(stage: int, spp: int, level: float):
+        return compare(rep.passes("test", stage, spp) * scale, rep.passes("ref", stage, spp), level, margin)
+
+    seq = sequential(decide, PILOT, MAX_SPP, alpha, margin)
+    return Outcome(seq.comparison.verdict, seq.stage, seq.spent)
 
 
 def measure(repetitions: int, cache: Path = CACHE) -> list[dict]:
-    """Per scene, alpha, block margin and bias: how many sequences ended equivalent, disagree, inconclusive,
-    and the budget each verdict took."""
-    assert list(plan_stages(STAGES[0], STAGES[-1])) == list(STAGES)
-    rows = []
-    for scene in SCENES:
-        data = renders(scene, repetitions, cache)
-        for alpha in ALPHAS:
-            for block in BLOCK_MARGINS:
-                margin = Margin(IMAGE_MARGIN, block)
-                for k in BIASES:
-                    outcomes = [sequence(t, r, alpha, margin, 1 - k * IMAGE_MARGIN)
-                                for t, r in zip(data["test"], data["ref"])]
-                    rows.append({"scene": scene, "alpha": alpha, "block_margin": block, "bias": k, "n": len(outcomes)}
-                                | {v: sum(o.verdict == v for o in outcomes) for v in ("equivalent", "disagree", "inconclusive")}
-                                | {f"spent_{v}": [o.spent for o in outcomes if o.verdict == v]
-                                   for v in ("equivalent", "disagree", "inconclusive")}
-                                | {"seconds": float(np.median(data["seconds"]))})
-    return rows
+    """Per renderer, scene and bias: how many sequences ended equivalent, disagree, inconclusive, and the
+    budget each verdict took; repetition by repetition over every cell, so that an interrupted run leaves
+    the cells balanced."""
+    cells = [(renderer, scene) for renderer in RENDERERS for scene in SCENES]
+    outcomes: dict[tuple, list[Outcome]] = {(c, k): [] for c in cells for k in BIASES}
+    seconds: dict[tuple, list[float]] = {c: [] for c in cells}
+    for r in tqdm(range(repetitions), desc="equivalence repetitions", unit="repetition"):
+        for renderer, scene in cells:
+            rep = repetition(scene, renderer, r, cache)
+            for k in BIASES:
+                outcomes[(renderer, scene), k].append(sequence(rep, ALPHA, MARGIN, 1 - k * MARGIN.image))
+            seconds[renderer, scene].append(rep.seconds)
+    return [{"renderer": renderer, "scene": scene, "alpha": ALPHA, "bias": k, "n": len(o)}
+            | {v: sum(x.verdict == v for x in o) for v in ("equivalent", "disagree", "inconclusive")}
+            | {f"spent_{v}": [x.spent for x in o if x.verdict == v] for v in ("equivalent", "disagree", "inconclusive")}
+            | {"stages": [x.stage for x in o], "seconds_rendered": float(sum(seconds[renderer, scene]))}
+            for ((renderer, scene), k), o in outcomes.items()]
 
 
 def faults(spp: int = 256) -> list[dict]:
@@ -107,7 +131,7 @@ def faults(spp: int = 256) -> list[dict]:
     from .faults import FAULTS
     from .power import measure as check_fault
 
-    margin = Margin(IMAGE_MARGIN / SCALE, protocol.BLOCK_MARGIN)
+    margin = Margin(protocol.CI_MARGIN, protocol.BLOCK_MARGIN)
     rows = []
     for fault in tqdm(FAULTS.values(), desc="faults with a margin"):
         cell = check_fault(fault, spp, margin)
@@ -123,56 +147,59 @@ def _rate(k: int, n: int) -> str:
 
 
 def _budget(spent: list[int]) -> str:
+    """Samples per pixel a side at the default budget (x SCALE^2), as median and largest."""
     if not spent:
         return "-"
-    counts = {s: spent.count(s) for s in sorted(set(spent))}
-    return ", ".join(f"{n} at {s}" for s, n in counts.items())
+    scaled = [protocol.PASSES * s * SCALE ** 2 for s in spent]
+    return f"{np.median(scaled):.0f} ({max(scaled)})"
+
+
+def _pool(rows: list[dict]) -> dict:
+    out = {"n": 0, "equivalent": 0, "disagree": 0, "inconclusive": 0, "spent_equivalent": [], "spent_disagree": [],
+           "spent_inconclusive": []}
+    for r in rows:
+        for k in out:
+            out[k] += r[k]
+    return out
 
 
 def markdown(rows: list[dict], repetitions: int) -> list[str]:
-    pooled: dict[tuple, dict] = {}
-    for r in rows:
-        p = pooled.setdefault((r["alpha"], r["block_margin"], r["bias"]), {"n": 0, "equivalent": 0, "disagree": 0,
-                                                                             "inconclusive": 0, "spent_equivalent": [],
-                                                                             "spent_disagree": []})
-        for k in p:
-            p[k] += r[k]
     lines = [
         SECTION, "",
-        f"`validate check --margin` replayed on renders of Mitsuba against Mitsuba (validation/"
-        f"calibration_equivalence.py): {repetitions} repetitions per scene ({', '.join(SCENES)}), {protocol.PASSES} "
-        f"passes per side, {protocol.SIZE} x {protocol.SIZE}, TOST on the image means and every block, stage "
-        f"levels alpha / {len(STAGES)}. **A reduced grid**: stages of {', '.join(map(str, STAGES))} spp per pass, "
-        f"{SCALE ** 2} times fewer than the check's default {', '.join(str(s * SCALE ** 2) for s in STAGES)}, with "
-        f"margins {SCALE} times wider to match (standard errors are {SCALE} times larger): an image margin of "
-        f"{IMAGE_MARGIN:.0%} here is the default budget's 1%, and the block margins are quoted at the default "
-        "budget. The passes here (4 to 64 samples) are more skewed than the default's. The test side is scaled "
-        "by 1 - k x margin (k = 0: a null comparison; k = 1: too dark by exactly the margin; the example "
-        "renderer's `--scale`), so every row comes from the same renders. A false alarm is `disagree` at k = 0 "
-        "(should be at most alpha); a false \"equivalent\" is `equivalent` at k = 1 (at most alpha); power is "
-        "`disagree` at k = 2 and `equivalent` at k = 0. Clopper-Pearson 95% intervals. The budget is the samples "
-        "per pixel each side rendered over the stages the verdict took (16 passes x spp, summed, at this "
-        "grid's spp), with how many verdicts took it.", ""]
-    for alpha in ALPHAS:
-        lines += [f"Pooled over the scenes, alpha {alpha:g}:", "",
-                  "| block margin (default budget) | bias (x margin) | equivalent | disagree | inconclusive | "
-                  "budget of equivalent | budget of disagree |", "|---:|---:|---|---|---:|---|---|"]
-        for (a, block, k), p in pooled.items():
-            if a == alpha:
-                lines.append(f"| {block / SCALE:.0%} | {k:g} | {_rate(p['equivalent'], p['n'])} | "
-                             f"{_rate(p['disagree'], p['n'])} | {p['inconclusive']}/{p['n']} | "
-                             f"{_budget(p['spent_equivalent'])} | {_budget(p['spent_disagree'])} |")
-        lines.append("")
-    lines += [f"Per scene at alpha {ALPHAS[-1]:g} and the default block margin ({protocol.BLOCK_MARGIN:.0%}): "
-              "equivalent / disagree / inconclusive at each bias:", "",
-              "| scene | " + " | ".join(f"k = {k:g}" for k in BIASES) + " | seconds per repetition |",
-              "|---|" + "---|" * len(BIASES) + "---:|"]
-    for scene in SCENES:
-        cells = [r for r in rows if r["scene"] == scene and r["alpha"] == ALPHAS[-1]
-                 and abs(r["block_margin"] / SCALE - protocol.BLOCK_MARGIN) < 1e-9]
-        if cells:
-            lines.append(f"| {scene} | " + " | ".join(f"{c['equivalent']} / {c['disagree']} / {c['inconclusive']}"
-                                                     for c in cells) + f" | {cells[0]['seconds']:.0f} |")
+        f"`validate check --margin {MARGIN.image / SCALE:.0%}` (block margin {MARGIN.block / SCALE:.0%}) replayed as "
+        f"it decides (validation/calibration_equivalence.py): a pilot stage, then stages whose samples per pass it "
+        f"plans from the stage before, at most 3, each at level alpha / 3 (alpha {ALPHA:g}: a level whose rates "
+        f"{repetitions} repetitions can resolve). {repetitions} repetitions per scene ({', '.join(SCENES)}) and "
+        f"renderer under test: Mitsuba's path, or the tracer's path, against Mitsuba's path; {protocol.PASSES} "
+        f"passes a side, {protocol.SIZE} x {protocol.SIZE}. **A reduced grid**: a pilot of {PILOT} spp per pass and "
+        f"at most {MAX_SPP}, {SCALE ** 2} times fewer than the check's defaults ({protocol.SPP}, up to "
+        f"{protocol.MAX_SPP}), with margins {SCALE} times wider to match (standard errors are {SCALE} times larger); "
+        "its passes are more skewed than the default's. The test side is scaled by 1 - k x margin (k = 0: a null "
+        "comparison; k = 1: too dark by exactly the margin; the example renderer's `--scale`), so every row of a "
+        "renderer comes from the same renders. A false alarm is `disagree` at k = 0 (at most alpha); a false "
+        "\"equivalent\" is `equivalent` at k = 1 (at most alpha); the power curve is `disagree` at k = 0.5, 1, 2 "
+        "and `equivalent` at k = 0. Clopper-Pearson 95% intervals. Budget: the samples per pixel each side "
+        "rendered over the stages the verdict took (passes x spp, summed), quoted at the default budget "
+        f"(x {SCALE ** 2}): median (largest).", "",
+        "| renderer under test | bias (x margin) | equivalent | disagree | inconclusive | budget of equivalent | "
+        "budget of disagree | budget of inconclusive |", "|---|---:|---|---|---:|---|---|---|"]
+    for renderer in RENDERERS:
+        for k in BIASES:
+            p = _pool([r for r in rows if r["renderer"] == renderer and r["bias"] == k])
+            lines.append(f"| {renderer} | {k:g} | {_rate(p['equivalent'], p['n'])} | {_rate(p['disagree'], p['n'])} "
+                         f"| {p['inconclusive']}/{p['n']} | {_budget(p['spent_equivalent'])} | "
+                         f"{_budget(p['spent_disagree'])} | {_budget(p['spent_inconclusive'])} |")
+    lines += ["", "Per scene: equivalent / disagree / inconclusive at each bias, and the minutes this machine "
+              "rendered for the cell (both sides, all repetitions):", "",
+              "| renderer under test | scene | " + " | ".join(f"k = {k:g}" for k in BIASES) + " | minutes |",
+              "|---|---|" + "---|" * len(BIASES) + "---:|"]
+    for renderer in RENDERERS:
+        for scene in SCENES:
+            cells = [r for r in rows if r["renderer"] == renderer and r["scene"] == scene]
+            if cells:
+                lines.append(f"| {renderer} | {scene} | " + " | ".join(
+                    f"{c['equivalent']} / {c['disagree']} / {c['inconclusive']}" for c in cells)
+                    + f" | {cells[0]['seconds_rendered'] / 60:.1f} |")
     return lines
 
 
@@ -191,7 +218,7 @@ def update(out: Path, repetitions: int) -> Path:
 
 
 def fault_table(rows: list[dict]) -> list[str]:
-    lines = [f"The injected faults (validation/faults.py) under `--margin {IMAGE_MARGIN / SCALE:.0%}` (block margin "
+    lines = [f"The injected faults (validation/faults.py) under `--margin {protocol.CI_MARGIN:.0%}` (block margin "
              f"{protocol.BLOCK_MARGIN:.0%}), one stage of 16 x {rows[0]['spp'] if rows else 0} "
              "Mitsuba samples per pass (the branching estimator: 1/8 as many camera rays), 32 x 32: the verdict on "
              "the faulty tracer / on the correct one, and the faulty tracer's image mean against Mitsuba's:", "",

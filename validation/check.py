@@ -3,10 +3,12 @@
 For each scene, estimator and depth: the renderer under test renders `passes` independent passes; Mitsuba
 renders the same number of passes at the same samples per pass (an equal-budget reference, cached by the
 scene's content); `stats.compare` decides `agree`, `disagree` or `inconclusive` (with a margin:
-`equivalent`, `disagree` or `inconclusive`). An inconclusive comparison (a rejection only in blocks decided
-by a few rare samples; with a margin, equivalence not yet shown) is repeated at 4x the samples per pass, up
-to `max_spp`, each stage at level alpha / stages; what is still inconclusive then says what would settle it.
-Every refusal (`prepare`) comes before the first pass.
+`equivalent`, `disagree` or `inconclusive`). An undecided comparison (a rejection only in blocks decided by
+a few rare samples; with a margin, equivalence not yet shown) is repeated on fresh passes, in at most three
+stages up to `max_spp`, each at level alpha / stages. With a margin the check plans its own budget: the
+first stage measures the variances, and the second is sized from them so that an unbiased renderer would be
+shown equivalent with probability POWER (`next_spp`). What is still inconclusive then says what would settle
+it. Every refusal (`prepare`) comes before the first pass.
 
 The branching (report) estimator traces many rays per camera ray: its reference has REPORT_REFERENCE_SPP
 times its camera rays per pass. Where few camera rays see a small bright feature, a side's pass means are
@@ -20,6 +22,7 @@ from __future__ import annotations
 import sys
 import time
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -72,7 +75,7 @@ class CheckResult:
     comparison: Comparison = field(repr=False)
     note: str = ""
     alpha: float = protocol.ALPHA   # the check's family-wise level, spent over its stages
-    stage: int = 1                  # the stage that decided (samples per pass x4 from one to the next)
+    stage: int = 1                  # the stage that decided (or the last run)
     stages: int = 1                 # the stages planned (spp to max_spp), each at level alpha / stages
     spent_spp: int = 0              # samples per pixel each side rendered over all stages (passes x spp summed)
 
@@ -104,7 +107,8 @@ class CheckResult:
         if c.margin is not None:
             out["equivalence"] = {"margin_image": c.margin.image, "margin_block": c.margin.block,
                                   "image_means": [bool(x) for x in c.equivalent_image],
-                                  "blocks": int(c.equivalent_map.sum()), "spp_factor_needed": c.needed}
+                                  "blocks": int(c.equivalent_map.sum()), "spp_factor_needed": c.needed,
+                                  "spp_factor_unbiased": c.needed_unbiased}
         return out
 
 
@@ -144,11 +148,25 @@ def default_spp(renderer) -> int:
 
 
 def stages(spp: int, max_spp: int) -> list[int]:
-    """The samples per pass of each stage: spp, then 4x at a time up to max_spp."""
-    out = [spp]
-    while out[-1] * 4 <= max_spp:
-        out.append(out[-1] * 4)
-    return out
+    """The samples per pass of a test of difference's stages: spp, the geometric mean of spp and max_spp, and
+    max_spp (fewer where they coincide); a check runs at most as many stages, each at level alpha / their number."""
+    if max_spp <= spp:
+        return [spp]
+    return sorted({spp, round((spp * max_spp) ** 0.5), max_spp})
+
+
+def next_spp(c: Comparison, spp: int, stage: int, max_spp: int) -> int | None:
+    """With a margin, the samples per pass of the stage after an undecided one (None: no stage can decide it):
+    the second stage is sized from the first's standard errors for an unbiased renderer, a later one for the
+    difference its predecessor measured (stats.spp_factor: every TOST passes with probability POWER), at least
+    `spp` and at most `max_spp`; a stage that would need more than `max_spp` runs at `max_spp`, once."""
+    factor = c.needed_unbiased if stage == 1 else c.needed
+    if not np.isfinite(factor):
+        return None
+    want = _round_up(spp * factor)
+    if want > max_spp and spp >= max_spp:
+        return None
+    return min(max(want, spp), max_spp)
 
 
 def check(scene_file: str | Path, renderer: TracerRenderer | ExternalRenderer, max_depth: int | None = None,
@@ -176,30 +194,61 @@ def prepare(scene_file: str | Path, renderer: TracerRenderer | ExternalRenderer,
     return scene_plan
 
 
+@dataclass
+class Sequence:
+    """How a staged comparison ended: the deciding (or last) stage's comparison, that stage, the stages planned,
+    its samples per pass and the samples per pass summed over the stages run."""
+    comparison: Comparison
+    stage: int
+    stages: int
+    spp: int
+    spent: int
+
+
+def sequential(decide: Callable[[int, int, float], Comparison], spp: int, max_spp: int, alpha: float,
+               margin: Margin | None) -> Sequence:
+    """The stages of a check: `decide(stage, spp, level)` compares fresh passes of both sides at `spp` samples
+    per pass and `level`. Each stage runs at alpha / stages (a Bonferroni spending of the level over the stages
+    planned: the family-wise error rates hold whichever stage decides, and however a stage's samples were
+    chosen from the stages before it). Without a margin, only an inconclusive verdict (a rejection resting on
+    rare samples) goes on, at the samples per pass of `stages`; with one, any verdict but equivalent or
+    disagree, at the samples per pass `next_spp` plans from the stage before."""
+    ladder = stages(spp, max_spp)
+    level, spent = alpha / len(ladder), 0
+    for stage in range(1, len(ladder) + 1):
+        c = decide(stage, spp, level)
+        spent += spp
+        if c.verdict != "inconclusive" or stage == len(ladder):
+            break
+        following = ladder[stage] if margin is None else next_spp(c, spp, stage, max_spp)
+        if following is None:
+            break
+        spp = following
+    return Sequence(c, stage, len(ladder), spp, spent)
+
+
 def run(scene_plan: ScenePlan, renderer: TracerRenderer | ExternalRenderer, settings: Settings = Settings(),
         output: Path | None = None) -> CheckResult:
-    """Renders and decides a prepared check: stage by stage, each at level alpha / stages (a Bonferroni
-    spending of the level over the stages planned: the family-wise error rates hold whichever stage
-    decides), the samples per pass 4x higher at each stage until the verdict is decided or max_spp reached.
-    Without a margin only an inconclusive verdict (a rejection resting on rare samples) goes on; with one,
-    any verdict but equivalent or disagree."""
-    plan_spp = stages(settings.spp or default_spp(renderer), settings.max_spp)
-    level = settings.alpha / len(plan_spp)
-    start, spent = time.perf_counter(), 0
-    for stage, spp in enumerate(plan_spp, 1):
-        ref = mitsuba_reference(scene_plan, settings.passes, reference_spp(renderer, spp))   # Mitsuba refuses first
-        ours = renderer.passes(scene_plan, settings.passes, spp, settings.seed + (stage - 1) * settings.passes)
-        independence(ours, noisy=bool((ref.var > 0).any()))      # identical or correlated passes: refused
-        comparison = compare(block_means(ours, protocol.BLOCK), ref.blocks, level, settings.margin)
-        spent += settings.passes * spp
-        if comparison.verdict != "inconclusive":
-            break
-    result = CheckResult(str(scene_plan.path), renderer.label, scene_plan.max_depth, comparison.verdict, spp,
-                         reference_spp(renderer, spp), settings.passes, time.perf_counter() - start,
-                         scene_plan.width, scene_plan.height, comparison, _note(comparison, spp, settings, ours),
-                         settings.alpha, stage, len(plan_spp), spent)
+    """Renders and decides a prepared check, stage by stage (`sequential`), each on fresh passes of both sides."""
+    rendered = {}
+
+    def decide(stage: int, spp: int, level: float) -> Comparison:
+        offset = (stage - 1) * settings.passes     # fresh seeds on both sides
+        rendered["ref"] = mitsuba_reference(scene_plan, settings.passes, reference_spp(renderer, spp),
+                                            seed=protocol.SEED_REFERENCE + offset)     # Mitsuba refuses first
+        rendered["ours"] = renderer.passes(scene_plan, settings.passes, spp, settings.seed + offset)
+        independence(rendered["ours"], noisy=bool((rendered["ref"].var > 0).any()))   # identical or correlated: refused
+        return compare(block_means(rendered["ours"], protocol.BLOCK), rendered["ref"].blocks, level, settings.margin)
+
+    start = time.perf_counter()
+    seq = sequential(decide, settings.spp or default_spp(renderer), settings.max_spp, settings.alpha, settings.margin)
+    c, ours = seq.comparison, rendered["ours"]
+    result = CheckResult(str(scene_plan.path), renderer.label, scene_plan.max_depth, c.verdict, seq.spp,
+                         reference_spp(renderer, seq.spp), settings.passes, time.perf_counter() - start,
+                         scene_plan.width, scene_plan.height, c, _note(c, seq.spp, settings, ours),
+                         settings.alpha, seq.stage, seq.stages, settings.passes * seq.spent)
     if output is not None and result.verdict not in ("agree", "equivalent"):
-        write_images(output, scene_plan, result, ours.mean(0), ref)
+        write_images(output, scene_plan, result, ours.mean(0), rendered["ref"])
     return result
 
 
@@ -209,8 +258,8 @@ def _note(c: Comparison, spp: int, settings: Settings, ours: np.ndarray) -> str:
             return ("a measured difference lies at or beyond its margin without being significant; more samples "
                     f"per pass than {spp} would decide it")
         need = _round_up(spp * c.needed)
-        return (f"not yet shown within the margin: about {need} spp per pass would decide it "
-                f"(--max-spp {max(need, settings.max_spp * 4)})")
+        return (f"not shown within the margin at {spp} spp per pass: about {need} would decide it"
+                + (f" (--max-spp {need})" if need > settings.max_spp else ""))
     if c.verdict == "inconclusive":
         return (f"the rejected blocks are decided by a few rare samples; settle it with more than {spp} spp "
                 f"per pass (--spp {spp * 4} or --max-spp {max(spp * 4, settings.max_spp * 4)})")

@@ -149,8 +149,9 @@ def _check_parser(sub) -> None:
     k.add_argument("--spp", type=int, help=f"samples per pixel of one pass (default {protocol.SPP}; report "
                    f"estimator {protocol.REPORT_SPP} camera rays)")
     k.add_argument("--passes", type=int, default=protocol.PASSES, help=f"independent passes (default {protocol.PASSES})")
-    k.add_argument("--max-spp", type=int, default=protocol.MAX_SPP, help="an inconclusive check is repeated at 4x "
-                   f"the spp per pass up to this (default {protocol.MAX_SPP})")
+    k.add_argument("--max-spp", type=int, default=protocol.MAX_SPP, help="the most spp per pass an undecided check "
+                   "may raise itself to, in at most 3 stages: with --margin, each stage sized from the one before; "
+                   f"without, the geometric mean of --spp and this, then this (default {protocol.MAX_SPP})")
     k.add_argument("--seed", type=int, default=protocol.SEED_TEST)
     k.add_argument("--size", type=_size, default=protocol.SIZE, help="longer side of the image, the scene's aspect "
                    f"kept (default {protocol.SIZE}; 'native': the scene's own film; -D width=... height=... sets both)")

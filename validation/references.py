@@ -86,19 +86,20 @@ def reference(scene_file: str | Path, max_depth: int, size: int, passes: int = 1
     return mitsuba_reference(scene_plan, passes, spp, cache)
 
 
-def mitsuba_reference(scene_plan: ScenePlan, passes: int, spp: int, cache: Path | None = None) -> Reference:
-    """Mitsuba's `path` on the planned scene, `passes` x `spp` samples per pixel; cached (in `cache`, default
-    cache_folder()) under a key of the scene's content (every file it names), the plan, the samples and
-    Mitsuba's version."""
+def mitsuba_reference(scene_plan: ScenePlan, passes: int, spp: int, cache: Path | None = None,
+                      seed: int = SEED) -> Reference:
+    """Mitsuba's `path` on the planned scene, `passes` x `spp` samples per pixel from the seed base `seed`;
+    cached (in `cache`, default cache_folder()) under a key of the scene's content (every file it names), the
+    plan, the samples, the seed and Mitsuba's version."""
     cache = cache_folder() if cache is None else Path(cache)
-    key = scene_plan.content_key(passes=passes, spp=spp, seed=SEED, block=BLOCK, mitsuba=version())
+    key = scene_plan.content_key(passes=passes, spp=spp, seed=seed, block=BLOCK, mitsuba=version())
     path = cache / (f"{scene_plan.path.stem}-d{scene_plan.max_depth}-{scene_plan.width}x{scene_plan.height}"
                     f"-{passes}x{spp}-{key}.npz")
     ref = load(path, key)
     if ref is not None:
         return ref
     start = time.perf_counter()
-    p = MitsubaRenderer().passes(scene_plan, passes, spp, SEED)
+    p = MitsubaRenderer().passes(scene_plan, passes, spp, seed)
     seconds = time.perf_counter() - start
     ref = Reference(p.mean(0), p.var(0, ddof=1) / passes, block_means(p, BLOCK).astype(np.float32),
                     passes * spp, seconds, key)

@@ -108,7 +108,9 @@ class Comparison:
     margin: Margin | None = None
     equivalent_image: np.ndarray | None = field(default=None, repr=False)   # (3,) TOST passed
     equivalent_map: np.ndarray | None = field(default=None, repr=False)     # (rows, columns, 3) TOST passed
-    needed: float = float("nan")  # factor on the samples per pass at which every TOST would pass (inf: none)
+    needed: float = float("nan")  # factor on the samples per pass at which the TOSTs would pass with POWER if the
+    #                               measured differences were true (inf: one lies at or beyond its margin)
+    needed_unbiased: float = float("nan")   # the same for an unbiased renderer (every difference 0)
     p: np.ndarray = field(default=None, repr=False)          # (rows, columns, 3) p-values
     rejected_map: np.ndarray = field(default=None, repr=False)   # (rows, columns, 3) bool
     trusted: np.ndarray = field(default=None, repr=False)        # (rows, columns, 3) bool
@@ -230,20 +232,35 @@ def tost(diff: np.ndarray, se: np.ndarray, df: np.ndarray, delta: np.ndarray, le
     return np.where(se > 0, bound < delta, exact | (np.abs(diff) < delta))
 
 
-def samples_needed(diff: np.ndarray, se: np.ndarray, df: np.ndarray, delta: np.ndarray, level: float,
-                   equivalent: np.ndarray) -> float:
-    """The factor on the samples per pass at which every TOST not yet passed would pass, if each measured
-    difference were the true one (standard errors fall as 1/sqrt(samples)); inf where a difference lies at or
-    beyond its margin."""
-    todo = ~equivalent
-    if not todo.any():
+def spp_factor(diff: np.ndarray, se: np.ndarray, df: np.ndarray, delta: np.ndarray, level: float,
+               power: float = POWER) -> float:
+    """The smallest factor on the samples per pass at which TOSTs at `level` (`tost`) all pass with
+    probability at least `power`, if the true differences were `diff` (0: an unbiased renderer) and the
+    standard errors fell as 1/sqrt(samples) from `se`: the TOST's bound |D| + t se < delta inverted for the
+    margin, as the detectable bias inverts the test of difference for its bias (GUIDE section 7). The
+    probability that some TOST fails is bounded by the sum of each one's (Bonferroni), each taken with D
+    normal about `diff`: P(|D| >= delta - t se). Solved by bisection on the factor; inf where a difference lies
+    at or beyond its margin; tests without variance (`se` 0) are decided exactly and do not count."""
+    varies = se > 0
+    if not varies.any():
         return 1.0
-    room = delta[todo] - np.abs(diff[todo])
-    if (room <= 0).any():
+    d, s, m = np.abs(diff[varies]), se[varies], delta[varies]
+    if (d >= m).any():
         return float("inf")
     with np.errstate(invalid="ignore"):
-        q = np.nan_to_num(_t_isf(level, df[todo]), nan=-special.ndtri(level))
-    return float(max(1.0, np.max((q * se[todo] / room) ** 2)))
+        q = np.nan_to_num(_t_isf(level, df[varies]), nan=-special.ndtri(level))
+
+    def failing(factor: float) -> float:    # Bonferroni bound on P(some TOST fails) at factor x the samples
+        s_f = s / np.sqrt(factor)
+        room = m - q * s_f
+        p = special.ndtr((d - room) / s_f) + special.ndtr((-d - room) / s_f)
+        return float(np.where(room > 0, p, 1.0).sum())
+
+    lo, hi = -30.0, 60.0             # log2 of the factor
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        lo, hi = (lo, mid) if failing(2 ** mid) <= 1 - power else (mid, hi)
+    return float(2 ** hi)
 
 
 def resolved(diff: np.ndarray, ma: np.ndarray, mb: np.ndarray) -> np.ndarray:
@@ -302,14 +319,17 @@ def _relative(x: np.ndarray, scale: np.ndarray) -> np.ndarray:
 
 
 def _equivalence(c: Comparison, image: tuple, blocks: tuple) -> None:
-    """Sets c's TOST results, the samples that would decide it, and the verdict with a margin: equivalent
-    (every image mean and every block within its margin), else disagree (a difference detected), else
-    inconclusive."""
+    """Sets c's TOST results, the samples per pass that would decide it (`needed`: if the measured differences
+    were the true ones; `needed_unbiased`: for an unbiased renderer; both at c.alpha with POWER, over the tests
+    that can be decided), and the verdict with a margin: equivalent (every image mean and every block within its
+    margin), else disagree (a difference detected), else inconclusive."""
     passed = []
     for diff, se, df, delta, decidable, differs in (image, blocks):
         passed.append(tost(diff, se, df, delta, c.alpha, ~differs) & decidable)
     c.equivalent_image, c.equivalent_map = passed
-    c.needed = max(samples_needed(d, s, f, m, c.alpha, ok) for (d, s, f, m, _, _), ok in zip((image, blocks), passed))
+    diff, se, df, delta = (np.concatenate([g[i][g[4]] for g in (image, blocks)]) for i in range(4))
+    c.needed = spp_factor(diff, se, df, delta, c.alpha)
+    c.needed_unbiased = spp_factor(np.zeros_like(diff), se, df, delta, c.alpha)
     if c.equivalent_image.all() and c.equivalent_map.all():
         c.verdict = "equivalent"
     elif c.verdict == "agree":
