@@ -386,8 +386,9 @@ def report(out: Path, repetitions: int = 12) -> Path:
         "whose passes hold an outlier on either side (Grubbs' test at 1%), whose mean rests on fewer than "
         f"{MIN_NONZERO} non-black passes, or whose passes on one side take fewer than {MIN_DISTINCT} values "
         "while the other side's vary (a count of rare events, as the camera rays of a pass that see a few lit "
-        "pixels). The check then repeats at 4x the samples per pass (up to 1024) and, if still undecided, says "
-        "how many samples would settle it.",
+        "pixels). The check then repeats on fresh passes, at the geometric mean of its spp and --max-spp "
+        f"({protocol.MAX_SPP}), then at --max-spp (each of the 3 stages at alpha / 3), and, if still undecided, "
+        "says how many samples would settle it.",
         "",
         f"## False alarms: {n} null comparisons", "",
         "A null comparison pits an unbiased renderer against itself with independent seeds, in the check's "
