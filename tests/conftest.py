@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from validation.check import REPORT_REFERENCE_SPP
+from validation.verdict.check import REPORT_REFERENCE_SPP
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "mitsuba_scenes"
@@ -16,7 +16,7 @@ os.environ.pop("CI", None)   # validate check defaults to a margin under CI: tes
 @functools.lru_cache(maxsize=None)
 def mitsuba_passes(scene: str, passes: int, spp: int, **params) -> np.ndarray:
     """Mitsuba's independent passes of a scene, shared by all tests of a session."""
-    from validation.mitsuba_render import render_passes
+    from validation.verdict.mitsuba_render import render_passes
 
     return render_passes(SCENES / scene, passes, spp, seed=12345, **params)
 

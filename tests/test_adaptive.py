@@ -16,9 +16,9 @@ from tracer.imageio import read_exr
 from tracer.jit import Array3f, Float, UInt32
 from tracer.rendering import render
 from tracer.sampling import seeded_rng
-from validation.metrics import agreement
-from validation.references import reference
-from validation.protocol import ALPHA   # family-wise false-positive rate of one comparison
+from validation.verdict.metrics import agreement
+from validation.verdict.references import reference
+from validation.verdict.protocol import ALPHA   # family-wise false-positive rate of one comparison
 
 SCENES = Path(__file__).resolve().parents[1] / "mitsuba_scenes"
 ROOM = SCENES / "hexagon_room.xml"

@@ -1,5 +1,5 @@
 """Both estimators against Mitsuba's `path` integrator on the same XML, through `validate check`'s function
-(validation.check): equal-budget Welch tests per 4x4 block and channel and on the image means,
+(validation.verdict.check): equal-budget Welch tests per 4x4 block and channel and on the image means,
 Bonferroni-corrected, family-wise false-positive rate ALPHA per comparison (measured: reports/calibration.md)
 — and the same check shown to disagree on a wrong image and on the report code's estimator bug.
 
@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from validation.check import Settings, check
-from validation.faults import FAULTS
-from validation.protocol import ALPHA
-from validation.renderers import ExternalRenderer, TracerRenderer
+from validation.verdict.check import Settings, check
+from validation.suites.faults import FAULTS
+from validation.verdict.protocol import ALPHA
+from validation.verdict.renderers import ExternalRenderer, TracerRenderer
 
 from .conftest import ROOT, SCENES
 

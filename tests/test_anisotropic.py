@@ -9,8 +9,8 @@ import pytest
 
 import tracer
 from tracer.materials import dispatch
-from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison
-from validation.stats import compare_passes
+from validation.verdict.protocol import ALPHA  # family-wise false-positive rate of one comparison
+from validation.verdict.stats import compare_passes
 
 from .conftest import PASSES, SCENES, SIZE, SPP, mitsuba_passes, plugin_passes
 
@@ -37,7 +37,7 @@ def test_tangents_follow_mitsubas_dp_du():
     sh_frame.s at the same points: every shape kind of the scene is hit, and they agree to 1e-3 (float32)."""
     from tracer.geometry import SceneGeometry
     from tracer.jit import Array3f, Float, UInt32
-    from validation.mitsuba_render import mitsuba
+    from validation.verdict.mitsuba_render import mitsuba
     mi = mitsuba()
     rng = np.random.default_rng(3)
     d = np.column_stack([rng.uniform(-0.35, 0.35, 400), rng.uniform(-0.35, 0.35, 400), -np.ones(400)])

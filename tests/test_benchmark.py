@@ -1,7 +1,7 @@
 """The benchmark's machinery (not its timings, which are benchmark output, never asserted)."""
 import numpy as np
 
-from validation import benchmark
+from validation.benchmark import bench as benchmark
 
 
 def test_measure_runs_a_job_in_a_child_and_reports_memory(tmp_path):
@@ -24,7 +24,7 @@ def test_sphere_scene_has_the_requested_triangle_count(tmp_path):
 
 def test_mesh_scene_has_three_smooth_meshes_of_mixed_materials(tmp_path):
     import tracer
-    from validation.mesh_scene import write_mesh_scene
+    from validation.benchmark.mesh_scene import write_mesh_scene
 
     scene_file = write_mesh_scene(tmp_path, 6000)
     scene = tracer.load_scene(scene_file)
@@ -50,7 +50,7 @@ def test_bench_sections_are_checked_before_running(tmp_path):
 def test_mesh_profile_counts_on_a_small_mesh(monkeypatch, tmp_path):
     import tracer
     from tracer.geometry import SceneGeometry
-    from validation import mesh_profile
+    from validation.benchmark import mesh_profile
 
     monkeypatch.setattr(mesh_profile, "RAYS", 4096)
     monkeypatch.setattr(mesh_profile, "LAUNCHES", 1)
@@ -69,7 +69,7 @@ def test_mesh_profile_asks_both_renderers_the_same_queries(monkeypatch, tmp_path
     import mitsuba as mi
     import tracer
     from tracer.geometry import SceneGeometry
-    from validation import mesh_profile
+    from validation.benchmark import mesh_profile
 
     mi.set_variant("llvm_ad_rgb")
     monkeypatch.setattr(mesh_profile, "RAYS", 4096)
@@ -87,7 +87,7 @@ def test_a_renders_time_is_split_into_its_walks_and_the_rest(tmp_path):
     import tracer.shapes.bvh as bvh
     from tracer.geometry import SceneGeometry
     from tracer.rendering import render
-    from validation import mesh_profile
+    from validation.benchmark import mesh_profile
 
     scene = tracer.load_scene(benchmark._sphere_scene(tmp_path, 500), width=32, height=32)
     geo = SceneGeometry(scene)
@@ -141,7 +141,7 @@ def test_a_renders_own_rays_are_replayed_through_both_renderers(tmp_path):
     import tracer
     from tracer.geometry import SceneGeometry, recorded_queries
     from tracer.rendering import render
-    from validation import mesh_profile
+    from validation.benchmark import mesh_profile
 
     mi.set_variant("llvm_ad_rgb")
     path = benchmark._sphere_scene(tmp_path, 500)

@@ -12,13 +12,13 @@ from tracer import bitmap
 from tracer.geometry import SceneGeometry
 from tracer.materials import textures
 from tracer.jit import Float, UInt32
-from validation.stats import compare_passes
+from validation.verdict.stats import compare_passes
 
 from .conftest import PASSES, SCENES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import mi  # noqa: F401  (the fixture)
 from .test_xml_loader import write_scene
 
-from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+from validation.verdict.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
 SCENE = "bitmap.xml"
 IMAGE = SCENES / "textures" / "tiles.png"
 

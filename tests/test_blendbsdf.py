@@ -11,8 +11,8 @@ import pytest
 
 import tracer
 from tracer.materials import tables
-from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 2 comparisons: < 0.2% in all
-from validation.stats import compare_passes
+from validation.verdict.protocol import ALPHA  # family-wise false-positive rate of one comparison; 2 comparisons: < 0.2% in all
+from validation.verdict.stats import compare_passes
 
 from .conftest import PASSES, SCENES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import mi, scene_errors  # noqa: F401 (mi: Mitsuba in scalar_rgb, restored after)
@@ -104,7 +104,7 @@ def test_closed_form_test_fails_with_the_weight_on_the_wrong_bsdf(monkeypatch):
 @pytest.mark.slow
 def test_mitsuba_misses_light_of_the_delta_lobe():
     """Mitsuba 3.9's blendbsdf renders the furnace darker than the closed form (README, "blendbsdf")."""
-    from validation.mitsuba_render import render_passes
+    from validation.verdict.mitsuba_render import render_passes
     t = furnace_t(render_passes(FURNACE, PASSES, 64, seed=12345, width=8, height=8, max_depth=DEPTH, w=W))
     assert t < -T_LIMIT
 

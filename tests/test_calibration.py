@@ -3,9 +3,9 @@ disagreeing runs."""
 import numpy as np
 import pytest
 
-from validation import calibration
-from validation.calibration import ALPHAS, SWEEP, Cell, run_cell, verdicts
-from validation.report import Config, _disagreeing
+from validation.suites import calibration
+from validation.suites.calibration import ALPHAS, SWEEP, Cell, run_cell, verdicts
+from validation.reports.scene_report import Config, _disagreeing
 
 
 def passes(rng, shift: float = 0.0, repetitions: int = 3) -> np.ndarray:
@@ -61,7 +61,7 @@ def test_cross_compares_repetitions_and_every_run_with_every_run():
 def normal_repetition(tmp_path, sd1: float = 0.4):
     """A calibration_equivalence.Repetition whose atoms are normal passes (standard deviation sd1 at 1 spp,
     falling as 1/sqrt(spp)); records the atoms rendered."""
-    from validation.calibration_equivalence import Repetition
+    from validation.suites.calibration_equivalence import Repetition
 
     rendered = []
 
@@ -83,8 +83,8 @@ def test_a_pass_of_m_spp_is_composed_of_the_atoms_of_its_binary_digits(tmp_path)
 def test_the_equivalence_sequence_is_the_checks(tmp_path):
     """The replay plans its stages as the check does (check.sequential): a noisy pilot goes on to a planned
     stage that decides; a test side 20% too dark disagrees."""
-    from validation.calibration_equivalence import PILOT, sequence
-    from validation.stats import Margin
+    from validation.suites.calibration_equivalence import PILOT, sequence
+    from validation.verdict.stats import Margin
 
     rep, rendered = normal_repetition(tmp_path)
     honest = sequence(rep, 0.05, Margin(0.04, 0.4))
@@ -94,7 +94,7 @@ def test_the_equivalence_sequence_is_the_checks(tmp_path):
 
 
 def test_the_equivalence_section_replaces_its_predecessor_and_keeps_the_rest(tmp_path, monkeypatch):
-    from validation import calibration_equivalence as ce
+    from validation.suites import calibration_equivalence as ce
 
     rows = [{"renderer": r, "scene": s, "alpha": ce.ALPHA, "bias": k, "n": 2, "equivalent": 1, "disagree": 1,
              "inconclusive": 0, "spent_equivalent": [4], "spent_disagree": [20], "spent_inconclusive": [],
@@ -113,9 +113,9 @@ def test_the_equivalence_section_replaces_its_predecessor_and_keeps_the_rest(tmp
 
 
 def test_mitsubas_criterion_passes_its_reference_and_fails_a_dim_image():
-    """Mitsuba's render-test criterion (validation.mitsuba_criterion): the reference itself passes, 10% too dark
+    """Mitsuba's render-test criterion (validation.suites.mitsuba_criterion): the reference itself passes, 10% too dark
     fails where the variance is small, and the variance floor keeps a black reference from failing on noise."""
-    from validation.mitsuba_criterion import mitsuba_passes
+    from validation.suites.mitsuba_criterion import mitsuba_passes
 
     rng = np.random.default_rng(5)
     ref = rng.uniform(0.5, 1.0, (16, 16, 3))
@@ -127,7 +127,7 @@ def test_mitsubas_criterion_passes_its_reference_and_fails_a_dim_image():
 
 
 def test_cached_repetitions_resume_and_extend(tmp_path):
-    from validation.calibration import cached_repetitions
+    from validation.suites.calibration import cached_repetitions
 
     calls = []
 

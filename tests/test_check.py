@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from validation import cli
-from validation.check import exit_code, write_json, write_junit
-from validation.scenefile import ScenePlanError, plan
-from validation.stats import compare, grubbs_critical
-from validation.protocol import ALPHA   # family-wise false-positive rate of one comparison
+from validation.verdict.check import exit_code, write_json, write_junit
+from validation.verdict.scenefile import ScenePlanError, plan
+from validation.verdict.stats import compare, grubbs_critical
+from validation.verdict.protocol import ALPHA   # family-wise false-positive rate of one comparison
 
 from .conftest import SCENES
 
@@ -210,7 +210,7 @@ def test_coverage_counts_scenes_and_ranks_blockers(tmp_path):
     """validate coverage on a miniature mitsuba-data: one scene both load, one the tracer refuses, one that
     Mitsuba refuses too, an include fragment (no sensor) reported as such, and a refusal naming a file in the
     data's folder by its path relative to the folder."""
-    from validation.coverage import markdown, survey
+    from validation.suites.coverage import markdown, survey
 
     scenes = tmp_path / "docs" / "scenes"
     scenes.mkdir(parents=True)
@@ -240,7 +240,7 @@ def test_coverage_counts_scenes_and_ranks_blockers(tmp_path):
 def test_the_content_key_covers_files_an_included_fragment_names_through_the_includers_path(tmp_path):
     """Mitsuba's test scenes name their meshes in an included fragment, found through the including file's
     <path>: those meshes are part of the scene's content, so editing one changes the key."""
-    from validation.scenefile import files_digest, referenced_files
+    from validation.verdict.scenefile import files_digest, referenced_files
 
     (tmp_path / "common" / "meshes").mkdir(parents=True)
     (tmp_path / "tests" / "fragments").mkdir(parents=True)

@@ -10,13 +10,13 @@ from tracer.materials import conductor
 from tracer.materials.fresnel import fresnel_conductor
 from tracer.ior import CONDUCTORS
 from tracer.jit import Array3f, Float
-from validation.stats import compare_passes
+from validation.verdict.stats import compare_passes
 
 from .conftest import PASSES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import mi  # noqa: F401  (the fixture)
 from .test_xml_loader import write_scene
 
-from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+from validation.verdict.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
 
 
 def test_named_conductors_are_mitsubas(mi):

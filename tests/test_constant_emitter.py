@@ -11,13 +11,13 @@ import tracer
 from tracer import SceneError
 from tracer.geometry import SceneGeometry
 from tracer.rendering import render
-from validation.stats import compare_passes
+from validation.verdict.stats import compare_passes
 
 from .conftest import PASSES, SCENES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import scene_errors
 from .test_xml_loader import write_scene
 
-from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+from validation.verdict.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
 SCENE = "constant_environment.xml"
 
 

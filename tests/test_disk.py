@@ -8,11 +8,11 @@ import pytest
 
 import tracer
 from tracer.shapes import Rectangle
-from validation.stats import compare_passes
+from validation.verdict.stats import compare_passes
 
 from .conftest import PASSES, SCENES, SIZE, SPP, mitsuba_passes, plugin_passes
 
-from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+from validation.verdict.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
 SCENE = "disks.xml"
 
 

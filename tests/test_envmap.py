@@ -10,13 +10,13 @@ import tracer
 from tracer.geometry import SceneGeometry
 from tracer.lights.envmap import EnvmapKernel
 from tracer.jit import Array3f, Float
-from validation.stats import compare_passes
+from validation.verdict.stats import compare_passes
 
 from .conftest import PASSES, SCENES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import mi, scene_errors  # noqa: F401  (mi: the fixture)
 from .test_xml_loader import write_scene
 
-from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+from validation.verdict.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
 SCENE = "environment_map.xml"
 
 

@@ -12,9 +12,9 @@ from scipy import stats
 
 from tracer.scene import SceneError
 from validation import cli
-from validation.check import sequential, stages
-from validation.scenefile import plan
-from validation.stats import POWER, Margin, compare
+from validation.verdict.check import sequential, stages
+from validation.verdict.scenefile import plan
+from validation.verdict.stats import POWER, Margin, compare
 
 from .conftest import ROOT, SCENES
 
@@ -129,7 +129,7 @@ def test_the_planner_inverts_the_tost_for_its_power():
     """stats.spp_factor against simulation: one TOST of standard error 1, margin 5, level 1e-3: at the factor
     it returns, the TOST passes with probability POWER, for a true difference of 0 and of 2; a difference at
     the margin can never be shown within it."""
-    from validation.stats import spp_factor
+    from validation.verdict.stats import spp_factor
 
     rng = np.random.default_rng(5)
     q = stats.norm.isf(1e-3)
@@ -230,7 +230,7 @@ def test_a_render_test_scene_is_planned_and_loaded_by_mitsuba():
 
 
 def test_ci_sets_the_margin_and_none_removes_it(monkeypatch, capsys):
-    from validation import protocol
+    from validation.verdict import protocol
     from validation.cli import _check_margin
 
     monkeypatch.delenv("CI", raising=False)

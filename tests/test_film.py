@@ -4,8 +4,8 @@ import pytest
 
 from tracer.film import Film, ReconstructionFilter
 from tracer.jit import Array3f, Float
-from validation.mitsuba_render import mitsuba
-from validation.protocol import ALPHA   # family-wise false-positive rate of one comparison
+from validation.verdict.mitsuba_render import mitsuba
+from validation.verdict.protocol import ALPHA   # family-wise false-positive rate of one comparison
 
 FILTERS = {"box": ReconstructionFilter("box"), "gaussian": ReconstructionFilter("gaussian"),
            "gaussian stddev 0.8": ReconstructionFilter("gaussian", stddev=0.8),
@@ -102,7 +102,7 @@ PASSES, SPP, SIZE = 16, 64, 32
 
 
 def _variant(tmp_path, rfilter_xml):
-    from validation.scene_variants import with_filter
+    from validation.verdict.scene_variants import with_filter
 
     from .conftest import SCENES
 
@@ -112,7 +112,7 @@ def _variant(tmp_path, rfilter_xml):
 def _both(scene_file, rfilter=None):
     import tracer
     from tracer.rendering import render
-    from validation.mitsuba_render import render_passes
+    from validation.verdict.mitsuba_render import render_passes
 
     scene = tracer.load_scene(scene_file, width=SIZE, height=SIZE)
     ours = np.stack([render(scene, "path", spp=SPP, seed=500 + k, max_depth=3, rfilter=rfilter).image
@@ -123,7 +123,7 @@ def _both(scene_file, rfilter=None):
 @pytest.mark.parametrize("rfilter_xml", ["", '<rfilter type="tent"><float name="radius" value="1.5"/></rfilter>'],
                          ids=["no rfilter: Mitsuba's default gaussian", "tent radius 1.5"])
 def test_filtered_image_agrees_with_mitsuba(tmp_path, rfilter_xml):
-    from validation.stats import welch_test
+    from validation.verdict.stats import welch_test
 
     ours, theirs = _both(_variant(tmp_path, rfilter_xml))
     result = welch_test(ours, theirs, alpha=ALPHA)
@@ -131,7 +131,7 @@ def test_filtered_image_agrees_with_mitsuba(tmp_path, rfilter_xml):
 
 
 def test_agreement_test_sees_a_box_filter_against_a_gaussian_reference(tmp_path):
-    from validation.stats import welch_test
+    from validation.verdict.stats import welch_test
 
     ours, theirs = _both(_variant(tmp_path, ""), rfilter=ReconstructionFilter("box"))
     assert not welch_test(ours, theirs, alpha=ALPHA).passed

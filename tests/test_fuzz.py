@@ -1,4 +1,4 @@
-"""The fuzzer (validation/fuzz.py): its fast tier (300 seeded mutants through `tracer info`, every rendered
+"""The fuzzer (validation/suites/fuzz.py): its fast tier (300 seeded mutants through `tracer info`, every rendered
 mutant cross-checked against Mitsuba's loader), the failures of past runs kept as regression cases
 (tests/data/fuzz, through `tracer render`), and its classifier shown to catch each kind of failure."""
 from __future__ import annotations
@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from tracer.errors import UserError
-from validation import fuzz
-from validation.fuzz import FAILURES, Mutant, make_mutant, run_mutant, run_mutants, unexplained
+from validation.suites import fuzz
+from validation.suites.fuzz import FAILURES, Mutant, make_mutant, run_mutant, run_mutants, unexplained
 
 FAST_N, FAST_SEED = 300, 20261201
 

@@ -1,6 +1,6 @@
 """Every reader refuses a malformed or truncated file in one line naming the file and the scene element that
 named it, and the loader refuses what Mitsuba 3 refuses structurally (each case checked against Mitsuba's
-own loader, `mitsuba_refuses`); found by the fuzzer (validation/fuzz.py), kept here as classes of input."""
+own loader, `mitsuba_refuses`); found by the fuzzer (validation/suites/fuzz.py), kept here as classes of input."""
 from __future__ import annotations
 
 import os
@@ -23,7 +23,7 @@ MESHES = ROOT / "mitsuba_scenes" / "meshes"
 
 
 def mitsuba_refuses(path: Path) -> bool:
-    from validation.fuzz import mitsuba_refuses as refuses
+    from validation.suites.fuzz import mitsuba_refuses as refuses
     return refuses(path)
 
 

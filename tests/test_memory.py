@@ -15,7 +15,7 @@ from tracer import cli, memory_guard
 from tracer.errors import OutOfMemory
 from tracer.geometry import SceneGeometry
 from tracer.imageio import read_exr, read_exr_header, write_exr
-from validation.mesh_scene import sphere, torus, write_obj
+from validation.benchmark.mesh_scene import sphere, torus, write_obj
 
 from .conftest import SCENES
 

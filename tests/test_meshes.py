@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tracer.meshes import MeshError, _parse_bulk, _parse_statements, read_obj, vertex_normals
-from validation.mesh_scene import torus
+from validation.benchmark.mesh_scene import torus
 
 from .test_mesh_formats import assert_same, mitsuba_mesh, ours
 from .test_xml_features import mi  # noqa: F401  (the fixture)

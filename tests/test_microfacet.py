@@ -21,7 +21,7 @@ RTOL, ATOL = 1e-3, 1e-5     # float32 kernels that round differently (fma, rsqrt
 @pytest.fixture(scope="module")
 def mi():
     """Mitsuba in its vectorised RGB variant (the previous variant restored after the module)."""
-    from validation.mitsuba_render import mitsuba
+    from validation.verdict.mitsuba_render import mitsuba
 
     module = mitsuba()
     previous = module.variant()

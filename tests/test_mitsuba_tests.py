@@ -10,7 +10,7 @@ import OpenEXR
 import pytest
 from scipy.stats import norm
 
-from validation import mitsuba_tests as mt
+from validation.suites import mitsuba_tests as mt
 
 from .test_xml_features import mi  # noqa: F401  (the fixture)
 

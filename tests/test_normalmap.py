@@ -10,8 +10,8 @@ import pytest
 import tracer
 from tracer.jit import Array3f
 from tracer.materials import normalmap
-from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison
-from validation.stats import compare_passes
+from validation.verdict.protocol import ALPHA  # family-wise false-positive rate of one comparison
+from validation.verdict.stats import compare_passes
 
 from .conftest import PASSES, SCENES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import scene_errors

@@ -9,12 +9,12 @@ import pytest
 import tracer
 from tracer.materials import plastic
 from tracer.materials.fresnel import fresnel_diffuse_reflectance
-from validation.stats import compare_passes
+from validation.verdict.stats import compare_passes
 
 from .conftest import PASSES, SCENES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import mi  # noqa: F401  (the fixture)
 
-from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
+from validation.verdict.protocol import ALPHA  # family-wise false-positive rate of one comparison; 3 comparisons: < 0.3% in all
 SCENE = "plastic.xml"
 
 

@@ -9,13 +9,13 @@ import pytest
 
 from tracer.integrators import direct
 from tracer.lights import POINT_LIGHT
-from validation.stats import compare_passes
+from validation.verdict.stats import compare_passes
 
 from .conftest import PASSES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import scene_errors
 from .test_xml_loader import write_scene
 
-from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 4 comparisons: < 0.4% in all
+from validation.verdict.protocol import ALPHA  # family-wise false-positive rate of one comparison; 4 comparisons: < 0.4% in all
 SCENE = "point_lights.xml"
 
 

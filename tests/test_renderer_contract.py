@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from validation import cli
-from validation.renderers import EXIT_UNSUPPORTED, ExternalRenderer, RendererError, independence
-from validation.scenefile import ScenePlanError, plan
+from validation.verdict.renderers import EXIT_UNSUPPORTED, ExternalRenderer, RendererError, independence
+from validation.verdict.scenefile import ScenePlanError, plan
 
 from .conftest import SCENES
 
@@ -35,7 +35,7 @@ NOISE = textwrap.dedent('''
 def test_resolved_scene_is_self_contained_and_renders_as_the_plan(tmp_path):
     """{scene_resolved}: no parameters, no includes, absolute paths, the plan's size, depth and spp; Mitsuba
     renders it from another folder bit for bit as the plan's scene."""
-    from validation.mitsuba_render import mitsuba
+    from validation.verdict.mitsuba_render import mitsuba
 
     mi = mitsuba()
     p = plan(SCENES / "mesh_formats.xml", {"max_depth": "3"}, size=8)   # a referenced sampler, meshes in a folder
@@ -52,7 +52,7 @@ def test_scene_json_describes_the_planned_scene(tmp_path):
     disks tessellated to the same area) wound towards its front; materials and emitters with their values."""
     from plyfile import PlyData
 
-    from validation import scenejson
+    from validation.verdict import scenejson
 
     p = plan(SCENES / "caustic.xml", {"max_depth": "4"}, size=16)
     scene = p.tracer_scene()

@@ -1,7 +1,7 @@
 """`validate check` with a faulty renderer under test: one that hangs, crashes, exits 0 without writing, writes
 NaN or infinite pixels, the wrong size, a truncated EXR or a PNG. Each is refused in one line with exit 2 before
 Mitsuba's reference is rendered, so nothing reaches the reference cache; a damaged cache entry is rendered
-again (validation.references.load)."""
+again (validation.verdict.references.load)."""
 from __future__ import annotations
 
 import sys
@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from validation import cli, references
+from validation import cli
+from validation.verdict import references
 
 from .conftest import SCENES
 
@@ -85,8 +86,8 @@ def test_a_faulty_renderer_is_refused_in_one_line(workdir, monkeypatch, capsys, 
 
 def test_the_fake_renderer_itself_is_accepted(tmp_path, monkeypatch):
     """The same renderer without a fault renders its passes (the cases above fail for their fault alone)."""
-    from validation.renderers import ExternalRenderer
-    from validation.scenefile import plan
+    from validation.verdict.renderers import ExternalRenderer
+    from validation.verdict.scenefile import plan
 
     script = tmp_path / "renderer.py"
     script.write_text(FAKE)

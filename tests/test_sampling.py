@@ -25,7 +25,7 @@ from scipy import stats
 
 from tracer import sampling
 from tracer.jit import BACKEND, Array3f, Float
-from validation.protocol import ALPHA   # family-wise false-positive rate of one comparison
+from validation.verdict.protocol import ALPHA   # family-wise false-positive rate of one comparison
 
 U = 2.0 ** -24
 N_SAMPLES = 1_000_000

@@ -2,7 +2,7 @@
 import numpy as np
 
 from validation import cli
-from validation.snapshot import ROOT, compare, write
+from validation.suites.snapshot import ROOT, compare, write
 
 SCENES = [ROOT / "mitsuba_scenes/cornell_box.xml", ROOT / "mitsuba_scenes/stress/negative_light.xml"]
 

@@ -1,15 +1,15 @@
-"""The fast cases of the numerical-stability suite (validation/stability.py, mitsuba_scenes/stress/).
+"""The fast cases of the numerical-stability suite (validation/suites/stability.py, mitsuba_scenes/stress/).
 
 Statistical cases run at family-wise false-positive rate ALPHA for this file (Bonferroni over its
 statistical cases); black and input cases are exact and have no false positives. The slow cases (the
 furnace near rho = 1, tiny lights, scaled rooms, glass against Mitsuba) run in
-`python -m validation.stability --report reports/stability.md`.
+`python -m validation.suites.stability --report reports/stability.md`.
 """
 import pytest
 
 import tracer
-from validation import stability
-from validation.protocol import ALPHA   # family-wise false-positive rate of one comparison
+from validation.suites import stability
+from validation.verdict.protocol import ALPHA   # family-wise false-positive rate of one comparison
 
 FAST = [c for c in stability.cases() if c.fast]
 CASE_ALPHA = ALPHA / sum(c.statistical for c in FAST)
@@ -55,7 +55,7 @@ def test_scaled_rooms_are_up_to_date():
     text = (stability.SCENES / "hexagon_room.xml").read_text()
     for fname, (op, scale) in stability._SCALED_OPS.items():
         assert (stability.STRESS / fname).read_text() == stability.scaled_room(text, op, scale), \
-            f"run python -m validation.stability --write-scenes ({fname} is stale)"
+            f"run python -m validation.suites.stability --write-scenes ({fname} is stale)"
 
 
 @pytest.mark.parametrize("scene_name", stability.LEAK_SCENES)

@@ -13,8 +13,8 @@ import pytest
 import tracer
 from tracer.geometry import SceneGeometry
 from tracer.jit import INF, NO_PRIM, Array3f, Float, UInt32
-from validation.protocol import ALPHA
-from validation.stats import compare_passes
+from validation.verdict.protocol import ALPHA
+from validation.verdict.stats import compare_passes
 
 from .conftest import PASSES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import mi, scene_errors  # noqa: F401  (mi: the fixture)

@@ -10,8 +10,8 @@ import pytest
 import tracer
 from tracer.materials import tables
 from tracer.materials.textures import Checkerboard, Constant
-from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 5 comparisons: < 0.5% in all
-from validation.stats import compare_passes
+from validation.verdict.protocol import ALPHA  # family-wise false-positive rate of one comparison; 5 comparisons: < 0.5% in all
+from validation.verdict.stats import compare_passes
 
 from .conftest import PASSES, SCENES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import mi, scene_errors  # noqa: F401 (mi: Mitsuba in scalar_rgb, restored after)

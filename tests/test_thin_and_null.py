@@ -8,8 +8,8 @@ import pytest
 
 from tracer.jit import Array3f
 from tracer.materials import null, thindielectric
-from validation.protocol import ALPHA  # family-wise false-positive rate of one comparison; 4 comparisons: < 0.4% in all
-from validation.stats import compare_passes
+from validation.verdict.protocol import ALPHA  # family-wise false-positive rate of one comparison; 4 comparisons: < 0.4% in all
+from validation.verdict.stats import compare_passes
 
 from .conftest import PASSES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .test_xml_features import scene_errors

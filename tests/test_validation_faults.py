@@ -1,4 +1,4 @@
-"""The check's power: each known fault injected into the tracer (validation.faults) makes `validate check`'s
+"""The check's power: each known fault injected into the tracer (validation.suites.faults) makes `validate check`'s
 function disagree with Mitsuba, while the correct tracer agrees at the same settings.
 
 Each comparison has family-wise false-positive rate ALPHA = 1e-3 (measured: reports/calibration.md): the five
@@ -10,10 +10,10 @@ import pytest
 
 import tracer
 from tracer.rendering import render
-from validation.check import Settings, check
-from validation.faults import FAULTS
-from validation.power import REPORT
-from validation.renderers import TracerRenderer
+from validation.verdict.check import Settings, check
+from validation.suites.faults import FAULTS
+from validation.suites.power import REPORT
+from validation.verdict.renderers import TracerRenderer
 
 from .conftest import SCENES
 

@@ -4,10 +4,12 @@ import shutil
 import numpy as np
 import pytest
 
-from validation import cli, references, sweep
-from validation.metrics import agreement, measure, rmse, ssim
-from validation.references import Reference
-from validation.scenefile import plan
+from validation import cli
+from validation.verdict import references
+from validation.reports import sweep
+from validation.verdict.metrics import agreement, measure, rmse, ssim
+from validation.verdict.references import Reference
+from validation.verdict.scenefile import plan
 
 from .conftest import SCENES
 
@@ -39,7 +41,7 @@ def test_agreement_uses_the_references_blocks():
     rng = np.random.default_rng(2)
     passes = rng.normal(1.0, 0.05, (8, 32, 32, 3)).astype(np.float32)
     ref_passes = rng.normal(1.0, 0.05, (8, 32, 32, 3)).astype(np.float32)
-    from validation.stats import block_means
+    from validation.verdict.stats import block_means
     ref = Reference(ref_passes.mean(0), ref_passes.var(0) / 8, block_means(ref_passes, 4), 8, 0.0, "k")
     assert agreement(passes, ref).passed
     assert not agreement(passes * 1.1, ref).passed

@@ -108,7 +108,7 @@ def test_paths_bounce_by_bounce_are_the_paths_in_one_kernel(monkeypatch):
 
 
 def test_the_plan_counts_a_wavefronts_memory(tmp_path):
-    from validation.mesh_scene import write_mesh_scene
+    from validation.benchmark.mesh_scene import write_mesh_scene
 
     room = tracer.load_scene(SCENES / "hexagon_room.xml", width=64, height=64)
     meshes = tracer.load_scene(write_mesh_scene(tmp_path, 3000), width=64, height=64)
@@ -200,7 +200,7 @@ def test_unbounded_paths_bounce_by_bounce_are_the_paths_in_one_kernel(tmp_path, 
     import drjit as dr
 
     from tracer.rendering import render
-    from validation.mesh_scene import write_mesh_scene
+    from validation.benchmark.mesh_scene import write_mesh_scene
 
     scene = tracer.load_scene(write_mesh_scene(tmp_path, 3000), width=12, height=12)
     geo = SceneGeometry(scene)
@@ -235,7 +235,7 @@ def test_a_new_mesh_scene_of_the_same_structure_compiles_no_kernel_anew(tmp_path
     """Two scenes that differ only in their meshes' sizes and shapes (BVHs of the same depth) render with the
     same kernels: no primitive count, box or root row is a literal in them (a new scene's first render
     compiled 0.4-0.7 s of kernels before). Compared by kernel hash."""
-    from validation.benchmark import _sphere_scene
+    from validation.benchmark.bench import _sphere_scene
     from tracer.rendering import render
 
     scenes = []

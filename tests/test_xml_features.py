@@ -18,7 +18,7 @@ TRI = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
 def mi():
     """Mitsuba in its scalar RGB variant for the duration of a test (the variant the other tests use is
     restored after it)."""
-    from validation.mitsuba_render import mitsuba
+    from validation.verdict.mitsuba_render import mitsuba
 
     module = mitsuba()                    # the project's variant, set first so that it can be restored
     previous = module.variant()

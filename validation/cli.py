@@ -112,13 +112,13 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-EXIT_UNSUPPORTED = 77    # validation.renderers.EXIT_UNSUPPORTED (not imported here: the parser loads fast)
+EXIT_UNSUPPORTED = 77    # validation.verdict.renderers.EXIT_UNSUPPORTED (not imported here: the parser loads fast)
 EXIT_NOTE = ("exit status: 0 every check agrees (or is skipped: the renderer does not support the scene), 1 any "
              "disagrees, 3 any is inconclusive (and none disagrees), 2 usage or input error")
 
 
 def _check_parser(sub) -> None:
-    from . import protocol
+    from .verdict import protocol
 
     k = sub.add_parser("check", help="agree / disagree / inconclusive for a renderer against Mitsuba, with exit "
                        "codes for CI", epilog=EXIT_NOTE + ". " + DEPTH_NOTE)
@@ -198,10 +198,10 @@ def _check(args) -> int:
     from tracer.cli import parse_defines
     from tracer.estimators import BranchingEstimator
 
-    from .check import Settings, exit_code, prepare, run, write_json, write_junit
-    from .references import CACHE_VARIABLE
-    from .renderers import ExternalRenderer, RendererUnsupported, TracerRenderer
-    from .scenefile import ScenePlanError
+    from .verdict.check import Settings, exit_code, prepare, run, write_json, write_junit
+    from .verdict.references import CACHE_VARIABLE
+    from .verdict.renderers import ExternalRenderer, RendererUnsupported, TracerRenderer
+    from .verdict.scenefile import ScenePlanError
 
     defines = parse_defines(args.defines)
     spp = args.spp
@@ -260,7 +260,7 @@ def _check(args) -> int:
 
 
 def _skip(scene, renderer, depth, e):
-    from .check import Skipped
+    from .verdict.check import Skipped
 
     return Skipped(str(scene), renderer.label, depth, str(e))
 
@@ -269,9 +269,9 @@ def _check_margin(values: list[float | None] | None):
     """The check's margin: --margin's, or in CI (the CI environment variable set) protocol.CI_MARGIN."""
     import os
 
-    from . import protocol
-    from .scenefile import ScenePlanError
-    from .stats import Margin
+    from .verdict import protocol
+    from .verdict.scenefile import ScenePlanError
+    from .verdict.stats import Margin
 
     if values is None:
         if not os.environ.get("CI"):
@@ -289,7 +289,7 @@ def _check_margin(values: list[float | None] | None):
 
 
 def _integer_define(text: str) -> int:
-    from .scenefile import ScenePlanError
+    from .verdict.scenefile import ScenePlanError
 
     try:
         return int(text)
@@ -308,7 +308,7 @@ def _interrupted(e: BaseException | None) -> bool:
 
 
 def _improvements(args) -> None:
-    from .improvements import generate
+    from .studies.improvements import generate
 
     out = args.output or (Path("out/reports") if args.quick else Path("reports")) / args.scene.stem
     command = "validate " + " ".join(shlex.quote(a) for a in sys.argv[1:])
@@ -316,7 +316,7 @@ def _improvements(args) -> None:
 
 
 def _config(args):
-    from .report import Config
+    from .reports.scene_report import Config
 
     config = Config.quick() if args.quick else Config()
     if args.size:
@@ -327,7 +327,7 @@ def _config(args):
 
 
 def _report(args) -> None:
-    from .report import generate
+    from .reports.scene_report import generate
 
     out = args.output or (Path("out/reports") if args.quick else Path("reports")) / args.scene.stem
     command = "validate " + " ".join(shlex.quote(a) for a in sys.argv[1:])
@@ -335,7 +335,7 @@ def _report(args) -> None:
 
 
 def _reference(args) -> None:
-    from .references import reference
+    from .verdict.references import reference
 
     ref = reference(args.scene, args.max_depth, args.size, args.passes, args.spp)
     print(f"{args.scene.stem} max_depth {args.max_depth}, {args.size} px, {ref.spp} spp: mean radiance "
@@ -343,8 +343,8 @@ def _reference(args) -> None:
 
 
 def _snapshot(args) -> int:
-    from .scenefile import ScenePlanError
-    from .snapshot import compare, write
+    from .verdict.scenefile import ScenePlanError
+    from .suites.snapshot import compare, write
 
     if args.against is not None and not any(args.against.glob("*.npy")):
         raise ScenePlanError(f"'{args.against}' holds no snapshot (.npy images)")
@@ -367,9 +367,9 @@ def _run(args) -> int:
     if args.command == "check":
         return _check(args)
     if args.command == "calibrate":
-        from . import calibration_equivalence, mitsuba_criterion
-        from .calibration import report
-        from .scenefile import ScenePlanError
+        from .suites import calibration_equivalence, mitsuba_criterion
+        from .suites.calibration import report
+        from .verdict.scenefile import ScenePlanError
 
         if args.only == "criterion" and args.mitsuba_data is None:
             raise ScenePlanError("--only criterion needs --mitsuba-data DIR (a copy of mitsuba-renderer/mitsuba-data)")
@@ -382,9 +382,9 @@ def _run(args) -> int:
         print(args.output)
         return 0
     if args.command == "coverage":
-        from .coverage import FOLDERS, report
-        from .provenance import command_line
-        from .scenefile import ScenePlanError
+        from .suites.coverage import FOLDERS, report
+        from .reports.provenance import command_line
+        from .verdict.scenefile import ScenePlanError
 
         if not any((args.mitsuba_data / f).is_dir() for f in FOLDERS):
             raise ScenePlanError(f"'{args.mitsuba_data}' holds none of {', '.join(FOLDERS)}: expected a copy of "
@@ -392,9 +392,9 @@ def _run(args) -> int:
         print(report(args.mitsuba_data, args.output, command_line(args.argv, args.mitsuba_data), not args.no_check))
         return 0
     if args.command == "mitsuba-tests":
-        from .mitsuba_tests import SCENES, report
-        from .provenance import command_line
-        from .scenefile import ScenePlanError
+        from .suites.mitsuba_tests import SCENES, report
+        from .reports.provenance import command_line
+        from .verdict.scenefile import ScenePlanError
 
         if not (args.mitsuba_data / SCENES).is_dir():
             raise ScenePlanError(f"'{args.mitsuba_data}' has no {SCENES} folder: expected a copy of "
@@ -403,26 +403,26 @@ def _run(args) -> int:
         return report(args.mitsuba_data, output, command_line(args.argv, args.mitsuba_data), args.only,
                       not args.no_mitsuba)
     if args.command == "stability":
-        from .stability import main as stability
+        from .suites.stability import main as stability
 
         return stability(["--report", str(args.output)])
     if args.command == "bench":
-        from .benchmark import run
+        from .benchmark.bench import run
 
         print(run(args.output, args.only, args.mitsuba_data))
         return 0
     if args.command == "snapshot":
         return _snapshot(args)
     if args.command == "fuzz":
-        from .fuzz import command_line
+        from .suites.fuzz import command_line
 
         return command_line(args, "validate " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
     if args.command == "faults":
-        from .power import table
+        from .suites.power import table
 
         print(table(args.output))
         return 0
-    from .scenefile import ScenePlanError
+    from .verdict.scenefile import ScenePlanError
 
     if not args.scene.is_file():
         raise ScenePlanError(f"scene file '{args.scene}' not found")

@@ -17,7 +17,7 @@ rendered small (`--size 8x8 --spp 1`) over an earlier good output, and classifie
   malformed error  a refusal of more than one line per problem, or one that names neither the scene nor the
                    file mutated, or one over MAX_LINE characters
 
-Mutants run in worker processes (`python -m validation.fuzz --worker`), each calling `tracer.cli.main` in
+Mutants run in worker processes (`python -m validation.suites.fuzz --worker`), each calling `tracer.cli.main` in
 process for one mutant after another (a render of 8 x 8 pixels costs its kernel's compilation, a
 refusal milliseconds); a worker that dies or stops answering is a crash or a hang, and is replaced.
 """
@@ -40,7 +40,7 @@ from collections import Counter
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SCENES = ROOT / "mitsuba_scenes"
 REGRESSIONS = ROOT / "tests" / "data" / "fuzz"
 ASSETS = ("meshes", "textures", "fragments")        # the folders the scenes name files in
@@ -379,7 +379,7 @@ def unexplained(outcomes: list[Outcome]) -> list[Outcome]:
 
 def mitsuba_refusal(scene: Path) -> str:
     """Mitsuba 3's refusal of a scene file, or '' where it loads it."""
-    from validation.mitsuba_render import mitsuba
+    from validation.verdict.mitsuba_render import mitsuba
 
     mi = mitsuba()
     try:
@@ -461,7 +461,7 @@ def run_mutants(mutants: list[Mutant], workers: int = 2, timeout: float = TIMEOU
     """Every mutant's outcome, in the order of `mutants`; `worker_argv`: another worker program (a test's)."""
     todo, done = list(reversed(mutants)), {}
     log = tempfile.TemporaryFile("w+")
-    argv = worker_argv or [sys.executable, "-m", "validation.fuzz", "--worker"]
+    argv = worker_argv or [sys.executable, "-m", "validation.suites.fuzz", "--worker"]
     pool = [_Worker(log, argv) for _ in range(min(workers, len(mutants)) or 1)]
     try:
         while len(done) < len(mutants):
@@ -546,12 +546,12 @@ def report(outcomes: list[Outcome], n: int, seed: int, seconds: float, workers: 
     lines = ["# Fuzzing the tracer's inputs", "",
              f"`{command}`: {n:,} mutants of the project's scenes (seed {seed}), {workers} worker processes, "
              f"{seconds:.0f} s ({n / max(seconds, 1e-9):.1f} mutants/s). Each mutant is rendered at 8 x 8, 1 spp "
-             "over an earlier good output (`validation/fuzz.py` says how mutants are made and classified).", "",
+             "over an earlier good output (`validation/suites/fuzz.py` says how mutants are made and classified).", "",
              "| outcome | mutants |", "|---|---:|"]
     lines += [f"| {c} | {counts.get(c, 0):,} |" for c in CLASSES]
     lines += ["", f"Rendered mutants that Mitsuba 3's loader refuses: {len(refused_by_mitsuba)}, of which "
                   f"{sum(bool(deliberate(o)) for o in refused_by_mitsuba)} are deliberate differences (README)"
-                  + (":" if DELIBERATE else "; none is declared (`validation.fuzz.DELIBERATE`).")]
+                  + (":" if DELIBERATE else "; none is declared (`validation.suites.fuzz.DELIBERATE`).")]
     lines += [f"- {why} ({sum(deliberate(o) == why for o in refused_by_mitsuba)} mutants)" for _, why in DELIBERATE]
     kinds = Counter(mu.split(" ")[0] for o in outcomes for mu in o.mutations)
     ops = Counter(" ".join(mu.split(" ")[:2]).rstrip(":") for o in outcomes for mu in o.mutations
@@ -613,7 +613,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv == ["--worker"]:
         return worker()
-    raise SystemExit("usage: validate fuzz --n N --seed S (the worker: python -m validation.fuzz --worker)")
+    raise SystemExit("usage: validate fuzz --n N --seed S (the worker: python -m validation.suites.fuzz --worker)")
 
 
 if __name__ == "__main__":

@@ -4,7 +4,7 @@
   reference mean r with variance v, E[(x - r)^2] = (x - truth)^2 + v, so the mean of v is taken off.
 - SSIM (scikit-image) on sRGB-encoded images clipped to [0, 1], data_range 1.
 - Mean bias per channel: mean(x - r).
-- Welch's per-block test (validation.stats) when independent passes of the image exist.
+- Welch's per-block test (validation.verdict.stats) when independent passes of the image exist.
 """
 from __future__ import annotations
 

@@ -282,8 +282,8 @@ def write_images(folder: Path, scene_plan: ScenePlan, result: CheckResult, ours:
     data in the interactive viewer (validation.viewer) with the block test's p-values."""
     from tracer.imageio import write_exr, write_png
 
-    from .plots import signed_colours
-    from .viewer import BlockTest, write_viewer
+    from ..reports.plots import signed_colours
+    from ..viewer import BlockTest, write_viewer
 
     folder = Path(folder) / f"{scene_plan.path.stem}-d{result.max_depth}-{_slug(result.renderer)}"
     folder.mkdir(parents=True, exist_ok=True)
@@ -329,7 +329,7 @@ def exit_code(results: list[CheckResult]) -> int:
 
 
 def write_json(results: list[CheckResult], path: Path, skipped: list[Skipped] = ()) -> None:
-    from .provenance import write_json as write
+    from ..reports.provenance import write_json as write
 
     write(path, {"exit_code": exit_code(results), "checks": [r.as_dict() for r in results],
                  "skipped": [s.as_dict() for s in skipped]})
@@ -370,6 +370,6 @@ def write_junit(results: list[CheckResult], path: Path, skipped: list[Skipped] =
         ET.SubElement(case, "skipped", message=f"unsupported: {r.reason}")
     root = ET.Element("testsuites")
     root.append(suite)
-    from .provenance import write_text
+    from ..reports.provenance import write_text
 
     write_text(path, "<?xml version='1.0' encoding='utf-8'?>\n" + ET.tostring(root, encoding="unicode") + "\n")

@@ -19,8 +19,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from .provenance import environment, relative_to, write_json, write_text
-from .scenefile import ScenePlanError, _parse
+from ..reports.provenance import environment, relative_to, write_json, write_text
+from ..verdict.scenefile import ScenePlanError, _parse
 
 FOLDERS = ("docs/scenes", "tests/scenes", "scenes")
 SPP = 32           # per pass: a check of Mitsuba's scenes at 16 x 32 spp, escalated up to MAX_SPP
@@ -65,7 +65,7 @@ def has_sensor(path: Path) -> bool:
 
 
 def _mitsuba_loads(path: Path) -> str:
-    from .mitsuba_render import mitsuba
+    from ..verdict.mitsuba_render import mitsuba
 
     try:
         mitsuba().load_file(str(path))
@@ -79,8 +79,8 @@ def survey(root: Path, check_scenes: bool = True) -> list[SceneOutcome]:
     import tracer
     from tracer.errors import UserError
 
-    from .check import Settings, check
-    from .renderers import TracerRenderer
+    from ..verdict.check import Settings, check
+    from ..verdict.renderers import TracerRenderer
 
     outcomes = []
     for path in tqdm(scene_files(root), desc="Mitsuba's scenes", unit="scene"):

@@ -19,11 +19,11 @@ from pathlib import Path
 import numpy as np
 from scipy import stats as sps
 
-from . import protocol
+from ..verdict import protocol
 from .calibration import CACHE, cached_repetitions
-from .renderers import MitsubaRenderer
-from .scenefile import plan
-from .stats import block_means, compare
+from ..verdict.renderers import MitsubaRenderer
+from ..verdict.scenefile import plan
+from ..verdict.stats import block_means, compare
 
 BUDGET = 2_000_000            # samples per image in Mitsuba's render tests
 ALPHA = 0.01                  # Mitsuba's level over the image (Sidak per pixel)
@@ -88,7 +88,7 @@ def markdown(rows: list[dict]) -> list[str]:
     lines = [SECTION, "",
              "Mitsuba's render-test criterion (per-pixel z-test of one image at 2,000,000 samples against the "
              "32,000-spp reference and its variance, 99.75% of the pixels passing at a Sidak level of 0.01; "
-             "validation/mitsuba_criterion.py) and the check (16 passes of the same budget's spp // 16 each side, "
+             "validation/suites/mitsuba_criterion.py) and the check (16 passes of the same budget's spp // 16 each side, "
              "alpha 1e-3, one stage, no margin) on the same renders of Mitsuba's path scaled by s (the example "
              "renderer's `--scale`): how often each catches the bias 1 - s. Both use the same spp (the budget's "
              "2,000,000 // pixels, rounded down to a multiple of 16), and the check renders as many again for its "
@@ -107,7 +107,7 @@ SECTION = "## Mitsuba's render-test criterion beside the check"
 
 def update(out: Path, mitsuba_data: Path, repetitions: int) -> Path:
     """Measures the render-test scenes of SCENES in a copy of mitsuba-data and writes the section into `out`."""
-    from .provenance import replace_section, write_json
+    from ..reports.provenance import replace_section, write_json
 
     rows = [r for name in SCENES for r in measure(mitsuba_data / name, repetitions)]
     write_json(out.with_name("calibration_criterion.json"), rows)

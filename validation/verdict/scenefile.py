@@ -88,7 +88,7 @@ class ScenePlan:
         return ET.tostring(root, encoding="unicode")
 
     def mitsuba_scene(self, spp: int):
-        """The scene loaded by Mitsuba (the variant of validation.mitsuba_render.mitsuba())."""
+        """The scene loaded by Mitsuba (the variant of validation.verdict.mitsuba_render.mitsuba())."""
         from .mitsuba_render import mitsuba
 
         mi = mitsuba()
@@ -162,7 +162,7 @@ def plan(path: str | Path, defines: dict[str, str] | None = None, size: int | No
 
 
 def files_digest(path: str | Path) -> str:
-    """SHA-256 of a scene's content: the file and every file it names (validation.scenefile.referenced_files)."""
+    """SHA-256 of a scene's content: the file and every file it names (validation.verdict.scenefile.referenced_files)."""
     h = hashlib.sha256()
     for f in referenced_files(Path(path)):
         h.update(f.name.encode())

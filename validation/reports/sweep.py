@@ -19,15 +19,15 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from .check import REPORT_REFERENCE_SPP
-from .metrics import measure
-from .mitsuba_render import mitsuba
-from .protocol import ALPHA, BLOCK
+from ..verdict.check import REPORT_REFERENCE_SPP
+from ..verdict.metrics import measure
+from ..verdict.mitsuba_render import mitsuba
+from ..verdict.protocol import ALPHA, BLOCK
 from .provenance import write_json
-from .references import Reference, mitsuba_reference
-from .renderers import TracerRenderer
-from .scenefile import files_digest, plan
-from .stats import block_means, compare
+from ..verdict.references import Reference, mitsuba_reference
+from ..verdict.renderers import TracerRenderer
+from ..verdict.scenefile import files_digest, plan
+from ..verdict.stats import block_means, compare
 
 ESTIMATORS = ("path", "report", "mitsuba")   # the tracer's two estimators and Mitsuba's `path` as a peer
 IMAGES = Path(".cache/runs")                # first image of every run, for the report's image panels

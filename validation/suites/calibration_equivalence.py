@@ -1,5 +1,5 @@
-"""Equivalence calibrated both ways: the staged check with a margin (validation.check.sequential: a pilot stage,
-then stages whose samples per pass it plans from the stage before; TOST in validation.stats) on null
+"""Equivalence calibrated both ways: the staged check with a margin (validation.verdict.check.sequential: a pilot stage,
+then stages whose samples per pass it plans from the stage before; TOST in validation.verdict.stats) on null
 comparisons and on renderers scaled by 1 - k x margin (k = 0.5, 1, 2: the example renderer's --scale).
 
 The renderer under test is Mitsuba's `path` (a null comparison in the strict sense) or the tracer's `path`
@@ -31,12 +31,12 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from . import protocol
+from ..verdict import protocol
 from .calibration import CACHE, interval
-from .check import sequential
-from .renderers import MitsubaRenderer, TracerRenderer
-from .scenefile import plan
-from .stats import Margin, block_means, compare
+from ..verdict.check import sequential
+from ..verdict.renderers import MitsubaRenderer, TracerRenderer
+from ..verdict.scenefile import plan
+from ..verdict.stats import Margin, block_means, compare
 
 SCENES = {"room": "mitsuba_scenes/hexagon_room.xml", "cornell_box": "mitsuba_scenes/cornell_box.xml",
           "caustic": "mitsuba_scenes/caustic.xml"}
@@ -126,7 +126,7 @@ def measure(repetitions: int, cache: Path = CACHE) -> list[dict]:
 
 
 def faults(spp: int = 256) -> list[dict]:
-    """The injected faults (validation.faults) under `validate check --margin 1%` at the default block margin,
+    """The injected faults (validation.suites.faults) under `validate check --margin 1%` at the default block margin,
     one stage of `spp`: the verdict on the faulty and on the correct tracer, with the faulty one's image mean."""
     from .faults import FAULTS
     from .power import measure as check_fault
@@ -167,7 +167,7 @@ def markdown(rows: list[dict], repetitions: int) -> list[str]:
     lines = [
         SECTION, "",
         f"`validate check --margin {MARGIN.image / SCALE:.0%}` (block margin {MARGIN.block / SCALE:.0%}) replayed as "
-        f"it decides (validation/calibration_equivalence.py): a pilot stage, then stages whose samples per pass it "
+        f"it decides (validation/suites/calibration_equivalence.py): a pilot stage, then stages whose samples per pass it "
         f"plans from the stage before, at most 3, each at level alpha / 3 (alpha {ALPHA:g}: a level whose rates "
         f"{repetitions} repetitions can resolve). {repetitions} repetitions per scene ({', '.join(SCENES)}) and "
         f"renderer under test: Mitsuba's path, or the tracer's path, against Mitsuba's path; {protocol.PASSES} "
@@ -209,7 +209,7 @@ SECTION = "## Equivalence: false alarms, false \"equivalent\" and power"
 def update(out: Path, repetitions: int) -> Path:
     """Measures (cached renders) and writes this section into `out` (reports/calibration.md), replacing an
     earlier one and keeping every other section; its rows go to calibration_equivalence.json beside it."""
-    from .provenance import replace_section, write_json
+    from ..reports.provenance import replace_section, write_json
 
     rows, injected = measure(repetitions), faults()
     write_json(out.with_name("calibration_equivalence.json"), {"sequences": rows, "faults": injected})
@@ -218,7 +218,7 @@ def update(out: Path, repetitions: int) -> Path:
 
 
 def fault_table(rows: list[dict]) -> list[str]:
-    lines = [f"The injected faults (validation/faults.py) under `--margin {protocol.CI_MARGIN:.0%}` (block margin "
+    lines = [f"The injected faults (validation/suites/faults.py) under `--margin {protocol.CI_MARGIN:.0%}` (block margin "
              f"{protocol.BLOCK_MARGIN:.0%}), one stage of 16 x {rows[0]['spp'] if rows else 0} "
              "Mitsuba samples per pass (the branching estimator: 1/8 as many camera rays), 32 x 32: the verdict on "
              "the faulty tracer / on the correct one, and the faulty tracer's image mean against Mitsuba's:", "",

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CORNELL = ROOT / "mitsuba_scenes" / "cornell_box.xml"
 # (name, share of the triangles, BSDF XML, to_world XML)
 MESHES = (

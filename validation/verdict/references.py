@@ -1,12 +1,12 @@
 """Ground truth: Mitsuba 3 renders of a scene file at a high sample count, cached on disk.
 
-A reference is K independent Mitsuba passes (validation.mitsuba_render.render_passes) reduced to what
+A reference is K independent Mitsuba passes (validation.verdict.mitsuba_render.render_passes) reduced to what
 the metrics and the statistical test need: the per-pixel mean, the per-pixel variance of that mean,
-and the passes averaged over BLOCK x BLOCK tiles (validation.stats.block_means), so that Welch's test
+and the passes averaged over BLOCK x BLOCK tiles (validation.verdict.stats.block_means), so that Welch's test
 runs on a reference without storing every full-resolution pass.
 
 The cache key hashes the scene file, every file it names (meshes, includes, textures), the plan (size,
-depth, overrides), the samples and the Mitsuba version (validation.scenefile.ScenePlan.content_key).
+depth, overrides), the samples and the Mitsuba version (validation.verdict.scenefile.ScenePlan.content_key).
 Files are written atomically (temporary file, then rename) and carry a SHA-256 of their arrays, checked
 on load: an interrupted or damaged cache entry is rendered again, never used.
 """

@@ -18,7 +18,7 @@ The tests are the scenes `DIR/tests/scenes/<folder>/<name>_<integrator>.xml` of 
 
 The z-test takes the reference as exact and the variance as the reference's; `detectable_bias` gives, for
 each test, the smallest uniform relative error of a noise-free image that the rule rejects: the bias the
-test could miss. Mitsuba itself (validation.mitsuba_render's variant) is put through the same protocol, so
+test could miss. Mitsuba itself (validation.verdict.mitsuba_render's variant) is put through the same protocol, so
 that a test Mitsuba's own render fails on this machine is told apart from a fault of the tracer.
 
 Renders are cached in `.cache/mitsuba_tests`, written atomically with a checksum checked on load, keyed by
@@ -45,9 +45,9 @@ import numpy as np
 
 from tracer.imageio import atomic_write, read_exr
 
-from .provenance import environment, relative_to, write_json, write_text
-from .references import _digest
-from .scenefile import files_digest
+from ..reports.provenance import environment, relative_to, write_json, write_text
+from ..verdict.references import _digest
+from ..verdict.scenefile import files_digest
 
 SAMPLE_BUDGET = 2_000_000     # samples per image, spread over the reference's pixels
 SEED = 0
@@ -212,7 +212,7 @@ def tracer_render(test: RenderTest, spp: int) -> Render:
 def mitsuba_render(test: RenderTest, spp: int) -> Render:
     """Mitsuba's render as its test takes it: loaded with spp and the integrator, rendered with seed 0, and the
     mean read from the film as XYZ (the `moment` integrator's first AOV, else the image converted)."""
-    from .mitsuba_render import mitsuba
+    from ..verdict.mitsuba_render import mitsuba
 
     mi = mitsuba()
     start = time.perf_counter()
@@ -289,7 +289,7 @@ def take(test: RenderTest, root: Path, run_mitsuba: bool = True, cache: Path = C
             traceback.print_exc()
             out.tracer, out.tracer_reason = "error", f"{type(e).__name__}: {relative_to(_one_line(e), root)}"
     if run_mitsuba:
-        from .mitsuba_render import version
+        from ..verdict.mitsuba_render import version
 
         try:
             r = cached(test, spp, "mitsuba", version(), lambda: mitsuba_render(test, spp), cache)
@@ -325,7 +325,7 @@ def _cell(status: str, rejected: float | None) -> str:
 
 def markdown(outcomes: list[Outcome], missing: list[str], command: str) -> str:
     from .coverage import blocker
-    from .mitsuba_render import version
+    from ..verdict.mitsuba_render import version
 
     n = len(outcomes)
     count = Counter(o.tracer for o in outcomes)

@@ -35,9 +35,9 @@ from tracer.jit import NO_PRIM, UInt32  # noqa: E402
 from tracer.rendering import render  # noqa: E402
 from tracer.sampling import seeded_rng  # noqa: E402
 
-from .filter_study import edge_mask  # noqa: E402
-from .metrics import ssim  # noqa: E402
-from .references import reference  # noqa: E402
+from .filters import edge_mask  # noqa: E402
+from ..verdict.metrics import ssim  # noqa: E402
+from ..verdict.references import reference  # noqa: E402
 
 MAX_DEPTH = 4           # the report's depth 2
 AOV_SPP = 8

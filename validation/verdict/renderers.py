@@ -5,14 +5,14 @@
 - `ExternalRenderer`: any command that renders a scene to an EXR (a student's renderer, another tool), given
   as a template with placeholders (PLACEHOLDERS; README "validate check: the renderer contract"):
   the scene as {scene} (the original file), {scene_resolved} (one self-contained Mitsuba XML with the plan
-  written in) or {scene_json} (validation.scenejson: neutral JSON and PLY meshes); {spp}; one pass per call
+  written in) or {scene_json} (validation.verdict.scenejson: neutral JSON and PLY meshes); {spp}; one pass per call
   with {seed} and {output}, or many with {seeds} and {outputs} (comma-separated, in the same order);
   {defines}: the plan as -D name=value (width, height, max_depth, spp and the scene parameters given with -D).
   A command may exit with EXIT_UNSUPPORTED to say the scene uses something it does not render.
 
 `passes(plan, passes, spp, seed)` returns a (passes, height, width, 3) float32 array; pass k uses seed
-`seed + k` (Mitsuba: `seed * 1_000_003 + k`, as validation.mitsuba_render), so two uses with different seed
-bases (validation.protocol) never share a stream. A renderer's passes must be independent: `independence`
+`seed + k` (Mitsuba: `seed * 1_000_003 + k`, as validation.verdict.mitsuba_render), so two uses with different seed
+bases (validation.verdict.protocol) never share a stream. A renderer's passes must be independent: `independence`
 (called by validate check on every renderer's passes) refuses identical passes and pairs of passes correlated
 beyond chance.
 """

@@ -28,8 +28,8 @@ from tracer.jit import NO_PRIM, UInt32  # noqa: E402
 from tracer.rendering import render  # noqa: E402
 from tracer.sampling import seeded_rng  # noqa: E402
 
-from .references import reference  # noqa: E402
-from .scene_variants import BOX_FILTER, with_filter  # noqa: E402
+from ..verdict.references import reference  # noqa: E402
+from ..verdict.scene_variants import BOX_FILTER, with_filter  # noqa: E402
 
 FILTERS = {"box": BOX_FILTER, "gaussian": "", "tent": '<rfilter type="tent"/>'}   # "": Mitsuba's default
 MAX_DEPTH = 4                   # the report's depth 2
@@ -66,7 +66,7 @@ def _mesh(scene: tracer.Scene, name: str):
 
 def _rms(images: list[np.ndarray], ref, mask: np.ndarray | None = None) -> float:
     """Root-mean-square error over the images (and the mask), the reference's own variance subtracted
-    as in validation.metrics.rmse."""
+    as in validation.verdict.metrics.rmse."""
     mask = np.ones(ref.mean.shape[:2], bool) if mask is None else mask
     mse = np.mean([np.mean((im[mask] - ref.mean[mask]) ** 2) for im in images]) - np.mean(ref.var[mask])
     return float(np.sqrt(max(mse, 0.0)))

@@ -16,7 +16,7 @@ PACKAGES = ("drjit", "numpy", "scipy", "scikit-image", "matplotlib")
 
 def environment(command: str) -> list[str]:
     """Markdown lines: the command, the machine, Python, Mitsuba and the packages' versions."""
-    from .mitsuba_render import version
+    from ..verdict.mitsuba_render import version
 
     packages = ", ".join(f"{p} {package_version(p)}" for p in PACKAGES)
     return [f"- Command: `{command}`",

@@ -10,12 +10,12 @@ import importlib
 import sys
 from pathlib import Path
 
-from .provenance import write_text
+from ..reports.provenance import write_text
 
 STUDIES = {
-    "filters": ("Anti-aliasing and pixel filters", "validation.filter_study"),
-    "adaptive": ("Adaptive sampling", "validation.adaptive_study"),
-    "denoise": ("Denoising", "validation.denoise_study"),
+    "filters": ("Anti-aliasing and pixel filters", "validation.studies.filters"),
+    "adaptive": ("Adaptive sampling", "validation.studies.adaptive"),
+    "denoise": ("Denoising", "validation.studies.denoising"),
 }
 
 

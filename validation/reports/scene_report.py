@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from . import convergence, plots
-from .check import REPORT_REFERENCE_SPP
+from ..verdict.check import REPORT_REFERENCE_SPP
 from .provenance import environment, write_text
-from .references import Reference, reference
+from ..verdict.references import Reference, reference
 from .sweep import RunSpec, image_path, sweep
 
 SWEEP_DEPTH = 4                       # max_depth of the convergence sweep: the report's depth 2
@@ -181,7 +181,7 @@ def generate(scene_file: str | Path, out: Path | None = None, config: Config = C
     checked = [r for r in by_key.values() if r["test"]]
     mitsuba_rows = [r for r in checked if r["estimator"] == "mitsuba"]
     tracer_rows = [r for r in checked if r["estimator"] != "mitsuba"]
-    lines += ["", "The check: `validate check`'s test (validation/stats.py `compare`): each run's passes against as many "
+    lines += ["", "The check: `validate check`'s test (validation/verdict/stats.py `compare`): each run's passes against as many "
               f"Mitsuba passes at the same samples per pass (the branching estimator: {REPORT_REFERENCE_SPP} per camera "
               "ray), Welch's test per 4 x 4 block and channel and on the image mean, Bonferroni-corrected, family-wise "
               "alpha 1e-3: a "
@@ -208,7 +208,7 @@ def _viewer(out: Path, scene_file: Path, spec: RunSpec, ref: Reference, conv: di
             markdown: str) -> None:
     """index.html beside README.md: the tracer's image and the reference as data, error against time and
     depth as interactive plots, the Markdown's tables; and the index of every report."""
-    from .viewer import Plot, Series, write_index, write_viewer
+    from ..viewer import Plot, Series, write_index, write_viewer
 
     def series(runs: dict, x: str) -> list[Series]:
         return [Series(specs[0].label, [by_key[s.key][x] if x != "max_depth" else str(s.max_depth) for s in specs],

@@ -13,14 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 WIDTH, HEIGHT = 20, 16
 MESH_TRIANGLES = 3000       # above the BVH threshold
 
 
 def scenes(folder: Path) -> list[Path]:
     """The scenes rendered: the project's, its stress cases and a mesh scene generated into `folder`."""
-    from .mesh_scene import write_mesh_scene
+    from ..benchmark.mesh_scene import write_mesh_scene
 
     found = sorted((ROOT / "mitsuba_scenes").glob("*.xml")) + sorted((ROOT / "mitsuba_scenes/stress").glob("*.xml"))
     return found + [write_mesh_scene(folder / "meshes", MESH_TRIANGLES)]

@@ -3,11 +3,11 @@ render time, where the samples go, and whether the adaptive image is biased.
 
 Both renderers spend the same mean budget (spp samples per pixel). Every point is several independent
 images; RMSE is their root-mean-square error against the Mitsuba reference with the reference's own
-variance subtracted (as validation.metrics.rmse), time the shortest render time of the images, without
+variance subtracted (as validation.verdict.metrics.rmse), time the shortest render time of the images, without
 kernel compilation (each kernel is compiled by one untimed render first; the variants take turns image by
 image, and the shortest time is the one least disturbed by other work on the machine). Bias is the mean
 signed error per channel of the adaptive images with its standard error, and Welch's per-block test
-(validation.metrics.agreement) against the reference's passes; the same numbers for uniform sampling, and
+(validation.verdict.metrics.agreement) against the reference's passes; the same numbers for uniform sampling, and
 for the biased variant that chooses a pixel's count from its own pilot samples, show what the test can see.
 """
 from __future__ import annotations
@@ -29,9 +29,9 @@ from tracer.adaptive import render_adaptive  # noqa: E402
 from tracer.imageio import srgb_encode  # noqa: E402
 from tracer.rendering import render  # noqa: E402
 
-from . import convergence, plots  # noqa: E402
-from .metrics import agreement, rel_mse, ssim  # noqa: E402
-from .references import reference  # noqa: E402
+from ..reports import convergence, plots  # noqa: E402
+from ..verdict.metrics import agreement, rel_mse, ssim  # noqa: E402
+from ..verdict.references import reference  # noqa: E402
 
 MAX_DEPTH = 4                    # the report's depth 2
 FULL = dict(size=128, budgets=(8, 16, 32, 64, 128, 256, 512, 1024), repeats=12, ref=(16, 256), equal=64)
@@ -215,7 +215,7 @@ def section(scene_file: Path, out: Path, quick: bool = False) -> list[str]:
     eq = m["criteria"]
     lines += [f"**Allocation criteria** at {cfg['equal']} spp ({repeats} images each): RMSE is what the default "
               "(`stddev`, n ~ s, the optimum for the summed squared error) minimises; `variance` (n ~ s^2) is the "
-              "common heuristic; `relative` minimises the relative MSE (validation.metrics.rel_mse).", "",
+              "common heuristic; `relative` minimises the relative MSE (validation.verdict.metrics.rel_mse).", "",
               "| sampling | time [s] | RMSE | relative MSE | 1 - SSIM |", "|---|---:|---:|---:|---:|"]
     for k, r in eq.items():
         label = k if k == "uniform" else f"adaptive, `{k}`"
@@ -240,7 +240,7 @@ def section(scene_file: Path, out: Path, quick: bool = False) -> list[str]:
     lines += [f"Welch's test at every budget ({repeats} images against the reference's passes), blocks rejected of "
               f"{welch['uniform'][0].tests}: " + "; ".join(per_budget) + ". With few samples a block's image "
               "means are far from normal where rare bright paths decide them, and the test rejects blocks of "
-              "unbiased images too (validation/stats.py)"
+              "unbiased images too (validation/verdict/stats.py)"
               + (", here always on the dark side (rare bright paths missed)" if dark else "") + "; a bias "
               "would instead be rejected more often as the budget grows."
               + _last_rejections(curves, welch), ""]

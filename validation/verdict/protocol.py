@@ -12,7 +12,7 @@ SIZE = 32           # longer side of the image a check renders (the scene's aspe
 BLOCK = 4           # the test's blocks are BLOCK x BLOCK pixels
 SPP = 64            # samples per pixel of one pass (path estimators and Mitsuba)
 REPORT_SPP = 2      # camera rays per pixel of one pass of the branching (report) estimator
-MAX_SPP = 8192      # a check that cannot decide raises the spp per pass up to this (validation.check.run)
+MAX_SPP = 8192      # a check that cannot decide raises the spp per pass up to this (validation.verdict.check.run)
 CI_MARGIN = 0.01    # validate check's equivalence margin of the image mean where CI is set (README: in CI)
 BLOCK_MARGIN = 0.2  # equivalence margin per block (of its mean, or the image mean where darker): calibration.md
 

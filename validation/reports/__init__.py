@@ -1,0 +1,1 @@
+"""The reports: scene reports (`validate report`), their sweeps and plots, and every report's provenance."""
