@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 import tracer
-import tracer.adaptive as adaptive
 from tracer import cli
 from tracer.adaptive import adaptive_passes, allocate, neighbour_mean, render_adaptive
 from tracer.film import Film
@@ -23,11 +22,6 @@ from validation.verdict.protocol import ALPHA   # family-wise false-positive rat
 SCENES = Path(__file__).resolve().parents[1] / "mitsuba_scenes"
 ROOM = SCENES / "hexagon_room.xml"
 Z_LIMIT = 5.0     # two-sided false-positive rate of the z-tests below: 5.7e-7
-
-
-def own_pilot(values, radius=adaptive.RADIUS):
-    """The biased variant: a pixel's weight from its own pilot samples."""
-    return values
 
 
 # --- allocation -------------------------------------------------------------------------------------------
@@ -91,13 +85,13 @@ def _rare_event_sampler(q):
     return sampler
 
 
-def _rare_event_z(runs=24, spp=8):
+def _rare_event_z(runs=24, spp=8, noise_from="neighbours"):
     q, truth = _rare_event_image()
     sampler = _rare_event_sampler(q)
     errors = []
     for seed in range(runs):
         film = Film(W, H)
-        _, counts = adaptive_passes(film, sampler, spp, spp // 2, seed)
+        _, counts = adaptive_passes(film, sampler, spp, spp // 2, seed, noise_from=noise_from)
         assert np.array_equal(film.weights().ravel(), counts)        # the lanes landed where allocated
         assert counts.sum() == spp * W * H and counts.min() >= spp // 2
         errors.append(film.develop()[..., 0] - truth)
@@ -111,9 +105,8 @@ def test_rare_event_mean_is_unbiased():
     assert abs(z) < Z_LIMIT, f"bias {bias:.4f} (truth mean {_rare_event_image()[1].mean():.3f}), z = {z:.2f}"
 
 
-def test_rare_event_test_catches_the_own_pilot_variant(monkeypatch):
-    monkeypatch.setattr(adaptive, "neighbour_mean", own_pilot)
-    z, bias = _rare_event_z()
+def test_rare_event_test_catches_the_own_pilot_variant():
+    z, bias = _rare_event_z(noise_from="own")
     assert z < -Z_LIMIT, f"bias {bias:.4f}, z = {z:.2f}"
 
 
@@ -122,9 +115,10 @@ def test_rare_event_test_catches_the_own_pilot_variant(monkeypatch):
 SIZE, PASSES, SPP = 32, 16, 64     # the cached reference of validation: 16 passes x 64 spp at 32 x 32
 
 
-def _room_passes():
+def _room_passes(noise_from="neighbours"):
     scene = tracer.load_scene(ROOM, width=SIZE, height=SIZE)
-    return np.stack([render_adaptive(scene, spp=SPP, seed=3000 + k, max_depth=4).image for k in range(PASSES)])
+    return np.stack([render_adaptive(scene, spp=SPP, seed=3000 + k, max_depth=4, noise_from=noise_from).image
+                     for k in range(PASSES)])
 
 
 def test_adaptive_room_agrees_with_mitsuba():
@@ -132,11 +126,10 @@ def test_adaptive_room_agrees_with_mitsuba():
     assert result.passed, result.summary()
 
 
-def test_mitsuba_comparison_catches_the_own_pilot_variant(monkeypatch):
+def test_mitsuba_comparison_catches_the_own_pilot_variant():
     """The biased variant darkens the room's noisiest blocks by several standard errors (measured: 2-3
     blocks rejected, min p < 4e-7, on each of 5 seed sets where the correct scheme passed all 5)."""
-    monkeypatch.setattr(adaptive, "neighbour_mean", own_pilot)
-    result = agreement(_room_passes(), reference(ROOM, 4, SIZE, PASSES, SPP), alpha=ALPHA)
+    result = agreement(_room_passes("own"), reference(ROOM, 4, SIZE, PASSES, SPP), alpha=ALPHA)
     assert not result.passed, result.summary()
 
 
@@ -163,6 +156,8 @@ def test_render_adaptive_refuses_what_it_cannot_do():
         render_adaptive(scene, spp=8, pilot_spp=1)
     with pytest.raises(ValueError, match="criterion"):
         render_adaptive(scene, spp=8, criterion="luck")
+    with pytest.raises(ValueError, match="noise estimate"):
+        render_adaptive(scene, spp=8, noise_from="luck")
 
 
 # --- the command line -------------------------------------------------------------------------------------

@@ -63,6 +63,7 @@ CRITERIA = ("stddev", "relative", "variance")
 STREAM = 0xADA9_7105_0000          # random streams of adaptive rendering: (seed, STREAM, pass)
 REL_EPS = 1e-2                     # the relative criterion's guard for dark pixels (validation's REL_EPS)
 RADIUS = 2                         # neighbourhood: (2 RADIUS + 1)^2 pixels, the pixel itself left out
+NOISE_FROM = ("neighbours", "own")  # where a pixel's noise estimate comes from; "own" is the biased variant
 
 
 def default_pilot(spp: int) -> int:
@@ -72,8 +73,10 @@ def default_pilot(spp: int) -> int:
 
 def render_adaptive(scene: Scene, spp: int | None = None, seed: int | None = None, max_depth: int | None = None,
                     rfilter: ReconstructionFilter | None = None, pilot_spp: int | None = None,
-                    criterion: str = "stddev", progress: bool = False) -> RenderResult:
+                    criterion: str = "stddev", progress: bool = False, noise_from: str = "neighbours") -> RenderResult:
     """The path estimator with `spp` samples per pixel on average, placed adaptively (module docstring).
+    `noise_from="own"` estimates a pixel's noise from its own pilot: the biased variant the module's
+    docstring explains, kept so that the validation can show its bias.
 
     `result.settings` holds "adaptive": True, "pilot_spp", "criterion" and "samples", the
     (height, width) number of samples each pixel received (pilot included)."""
@@ -95,19 +98,22 @@ def render_adaptive(scene: Scene, spp: int | None = None, seed: int | None = Non
     cam = scene.camera
     film = Film(cam.width, cam.height, rfilter)
     (rays, counts, image), seconds, compile_s = timed(
-        lambda: (*adaptive_passes(film, sampler, spp, pilot_spp, seed, criterion, progress), film.develop()))
+        lambda: (*adaptive_passes(film, sampler, spp, pilot_spp, seed, criterion, progress, noise_from),
+                 film.develop()))
     settings = {"adaptive": True, "pilot_spp": pilot_spp, "criterion": criterion,
                 "samples": counts.reshape(cam.height, cam.width)}
     return RenderResult(image, "path", spp, max_depth, seconds, compile_s, rays, settings=settings)
 
 
 def adaptive_passes(film: Film, sampler, spp: int, pilot_spp: int, seed: int, criterion: str = "stddev",
-                    progress: bool = False) -> tuple[int, np.ndarray]:
+                    progress: bool = False, noise_from: str = "neighbours") -> tuple[int, np.ndarray]:
     """Pilot, allocation and adaptive pass into `film` (box filter). `sampler(sample, pixel, seed_state)`
     returns (x, y, L, rays) per lane, as PathEstimator.samples. Returns the rays traced and each pixel's
     total sample count (pilot included), flattened."""
     if criterion not in CRITERIA:
         raise SettingsError(f"unknown adaptive criterion '{criterion}'; choose one of {', '.join(CRITERIA)}")
+    if noise_from not in NOISE_FROM:
+        raise SettingsError(f"unknown noise estimate '{noise_from}'; choose one of {', '.join(NOISE_FROM)}")
     if pilot_spp < 2:
         raise SettingsError(f"the pilot needs at least 2 samples per pixel to estimate a variance, got {pilot_spp}")
     if spp <= pilot_spp:
@@ -122,13 +128,14 @@ def adaptive_passes(film: Film, sampler, spp: int, pilot_spp: int, seed: int, cr
     rays = trace_pass(film, sampler, pixels * pilot_spp, lambda sample: sample // pilot_spp,
                       seed_state(seed, STREAM, 0), progress, "pilot", squares)
 
-    # 2. Allocation, from each pixel's neighbours only.
+    # 2. Allocation, from each pixel's neighbours only (or, the biased variant, from its own pilot).
     mean, second = film.develop().astype(np.float64), squares.develop().astype(np.float64)
     var = np.maximum(second - mean * mean, 0.0) * pilot_spp / (pilot_spp - 1)    # per sample, per channel
     if criterion == "relative":
         var = var / (mean * mean + REL_EPS)
     var = var.sum(axis=-1)
-    weight = neighbour_mean(var if criterion == "variance" else np.sqrt(var))
+    spread = var if criterion == "variance" else np.sqrt(var)
+    weight = neighbour_mean(spread) if noise_from == "neighbours" else spread
     extra = allocate(weight.ravel(), (spp - pilot_spp) * pixels, pilot_spp)
 
     # 3. Adaptive pass: lane j belongs to the pixel i with ends[i-1] <= j < ends[i].

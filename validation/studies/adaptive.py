@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from unittest import mock
 
 import matplotlib
 
@@ -24,7 +23,6 @@ import numpy as np  # noqa: E402
 from matplotlib.colors import LogNorm  # noqa: E402
 
 import tracer  # noqa: E402
-import tracer.adaptive  # noqa: E402
 from tracer.adaptive import render_adaptive  # noqa: E402
 from tracer.imageio import srgb_encode  # noqa: E402
 from tracer.rendering import render  # noqa: E402
@@ -113,8 +111,8 @@ def measure(scene_file: Path, quick: bool) -> dict:
     variants = {"uniform": ("uniform", {})} | {c: ("adaptive", {"criterion": c}) for c in CRITERIA}
     criteria = _points(scene, variants, equal, seeds, ref, hard)
     # The biased variant: a pixel's weight from its own pilot samples, which stay in its mean.
-    with mock.patch.object(tracer.adaptive, "neighbour_mean", lambda values, radius=2: values):
-        own = _points(scene, {"own": ("adaptive", {})}, equal, [60_000 + r for r in range(repeats)], ref, hard)["own"]
+    own = _points(scene, {"own": ("adaptive", {"noise_from": "own"})}, equal, [60_000 + r for r in range(repeats)],
+                  ref, hard)["own"]
     # One adaptive image in the time of the uniform one at `equal` spp, for the figure.
     u = next(r for r in curves["uniform"] if r["spp"] == equal)
     a = next(r for r in curves["adaptive"] if r["spp"] == equal)
