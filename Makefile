@@ -29,4 +29,4 @@ test-browser: $(STAMP)
 	$(PYTHON) -m pytest -q tests/test_viewer_browser.py
 
 clean:
-	rm -rf $(VENV) out .pytest_cache
+	rm -rf $(VENV) $(VENV)-peers out .pytest_cache

@@ -2,8 +2,11 @@
 # Installs what the project needs: an LLVM >= 16 runtime for Dr.Jit's CPU backend,
 # headless Chromium and its driver for the report viewer's browser test, then a virtual environment
 # with the package, Mitsuba and the test tools.
+#   bash scripts/setup.sh [VENV] [--peers]    (--peers, or PEERS=1: also VENV-peers with the built-in peers,
+#                                              Blender's Cycles and LuxCoreRender: about 1.4 GB, 1 minute)
 set -euo pipefail
 VENV="${1:-.venv}"
+[ "${2:-}" = "--peers" ] && PEERS=1
 
 have_llvm() {
     ldconfig -p 2>/dev/null | grep -Eq 'libLLVM(-|\.so\.)(1[6-9]|[2-9][0-9])'
@@ -35,4 +38,12 @@ fi
 python3 -m venv "$VENV"
 "$VENV/bin/pip" install -q --upgrade pip
 "$VENV/bin/pip" install -q -e ".[test]"
+if [ "${PEERS:-0}" = 1 ]; then
+    # the peers' own environment (bpy needs NumPy 1.x): the pins of pyproject.toml's `peers` extra
+    echo "setup: installing the peers (Cycles, LuxCoreRender) into $VENV-peers"
+    python3 -m venv "$VENV-peers"
+    "$VENV-peers/bin/pip" install -q --upgrade pip
+    "$VENV/bin/python" -c "import tomllib; print('\n'.join(tomllib.load(open('pyproject.toml', 'rb'))['project']['optional-dependencies']['peers']))" \
+        | xargs "$VENV-peers/bin/pip" install -q
+fi
 echo "setup: done ($VENV)"

@@ -11,7 +11,8 @@ import tracer
 import validation
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SKIP = {"validation.benchmark.bench", "validation.verdict.mitsuba_render"}   # import Mitsuba, whose variant a child sets
+SKIP = {"validation.benchmark.bench", "validation.verdict.mitsuba_render",   # import Mitsuba, whose variant a child sets
+        "validation.verdict.peers.cycles_worker", "validation.verdict.peers.luxcore_worker"}   # run in the peers' Python
 
 
 def modules() -> list[str]:

@@ -126,7 +126,8 @@ def _check_parser(sub) -> None:
     who = k.add_mutually_exclusive_group()
     who.add_argument("--estimator", action="append", choices=("path", "report"),
                      help="the tracer's estimator under test (repeatable; default path)")
-    who.add_argument("--renderer", metavar="'CMD ...'", help="an external renderer: a command template with "
+    who.add_argument("--renderer", metavar="'CMD ...'", help="a built-in peer, cycles or luxcore (README: Peers), "
+                     "or an external renderer: a command template with "
                      "the scene as {scene} (the file), {scene_resolved} (one self-contained Mitsuba XML with the "
                      "plan written in) or {scene_json} (neutral JSON with PLY meshes); {output} and {seed} (one "
                      "pass per call) or {outputs} and {seeds} (many, comma-separated); {spp}; {defines} (-D "
@@ -135,6 +136,9 @@ def _check_parser(sub) -> None:
                      "contract")
     k.add_argument("--timeout", type=float, metavar="SECONDS", help="--renderer: the most one call may take; a call "
                    "that takes longer is stopped and the check ends with exit 2 (default: no limit)")
+    k.add_argument("--mistake", choices=("extra-bounce", "twosided-light", "default-filter", "dim-emission",
+                                         "wide-fov"), help="--renderer cycles|luxcore: inject a conversion mistake "
+                   "(to show the check catches it; reports/peers.md)")
     k.add_argument("--jobs", "-j", type=int, default=1, help="--renderer: calls run at once (a batch command with "
                    "{outputs}: the passes split into this many calls; default 1)")
     k.add_argument("--label", metavar="NAME", help="--renderer: its name in the verdict lines (default: the command)")
@@ -199,6 +203,7 @@ def _check(args) -> int:
     from tracer.estimators import BranchingEstimator
 
     from .verdict.check import Settings, exit_code, prepare, run, write_json, write_junit
+    from .verdict.peers import PEERS, PeerRenderer
     from .verdict.references import CACHE_VARIABLE
     from .verdict.renderers import ExternalRenderer, RendererUnsupported, TracerRenderer
     from .verdict.scenefile import ScenePlanError
@@ -217,7 +222,14 @@ def _check(args) -> int:
     if args.renderer:
         if args.timeout is not None and not args.timeout > 0:
             raise ScenePlanError(f"--timeout must be a positive number of seconds, got {args.timeout}")
-        renderers = [ExternalRenderer(args.renderer, args.timeout, args.label, args.jobs)]
+        if args.renderer in PEERS:
+            if args.jobs != 1:
+                raise ScenePlanError(f"--jobs goes with an external --renderer, not the built-in '{args.renderer}'")
+            renderers = [PeerRenderer.named(args.renderer, args.timeout, args.mistake)]
+        else:
+            if args.mistake:
+                raise ScenePlanError("--mistake goes with a built-in --renderer (cycles, luxcore)")
+            renderers = [ExternalRenderer(args.renderer, args.timeout, args.label, args.jobs)]
     else:
         if args.label or args.jobs != 1:
             raise ScenePlanError("--label and --jobs go with --renderer")
