@@ -99,7 +99,7 @@ def test_the_equivalence_section_replaces_its_predecessor_and_keeps_the_rest(tmp
     rows = [{"renderer": r, "scene": s, "alpha": ce.ALPHA, "bias": k, "n": 2, "equivalent": 1, "disagree": 1,
              "inconclusive": 0, "spent_equivalent": [4], "spent_disagree": [20], "spent_inconclusive": [],
              "stages": [1, 2], "seconds_rendered": 60.0} for r in ce.RENDERERS for s in ce.SCENES for k in ce.BIASES]
-    monkeypatch.setattr(ce, "measure", lambda repetitions: rows)
+    monkeypatch.setattr(ce, "measure", lambda repetitions, **_: rows)
     monkeypatch.setattr(ce, "faults", lambda: [{"fault": "f", "spp": 256, "faulty": "disagree", "correct": "equivalent",
                                                 "faulty_mean": -0.05, "correct_detectable": [0.01] * 3}])
     out = tmp_path / "calibration.md"
@@ -108,8 +108,8 @@ def test_the_equivalence_section_replaces_its_predecessor_and_keeps_the_rest(tmp
     ce.update(out, 2)
     text = out.read_text()
     assert text.count(ce.SECTION) == 1 and text.index("## Null") < text.index(ce.SECTION) < text.index("## Time")
-    assert "kept too" in text and "| mitsuba | 1 | 3/6 [" in text and "| 1024 (1024) | 5120 (5120) | - |" in text
-    assert "| f | disagree / equivalent | -5.00% |" in text and "| path | caustic | 1 / 1 / 0 |" in text
+    assert "kept too" in text and "| mitsuba | project's 3 | 1 | 3/6 [" in text and "| 1024 (1024) | 5120 (5120) | - |" in text
+    assert "| f | disagree / equivalent | -5.00% |" in text and "| path | caustic | 2 | 1 / 1 / 0 |" in text
 
 
 def test_mitsubas_criterion_passes_its_reference_and_fails_a_dim_image():

@@ -38,9 +38,12 @@ def _parser() -> argparse.ArgumentParser:
                    "others: equivalence (the check with a margin: false alarms, false 'equivalent', power) or "
                    "criterion (Mitsuba's render-test criterion beside the check; needs --mitsuba-data)")
     c.add_argument("--mitsuba-data", type=Path, metavar="DIR", help="a copy of mitsuba-renderer/mitsuba-data: "
-                   "adds the section comparing Mitsuba's render-test criterion with the check")
-    c.add_argument("--equivalence-repetitions", type=int, default=24, help="repetitions per scene of the "
-                   "equivalence section (default 24)")
+                   "adds the section comparing Mitsuba's render-test criterion with the check, and its render-test scene "
+                   "test_arealight_path.xml to the equivalence section")
+    c.add_argument("--equivalence-repetitions", type=int, default=20, help="repetitions per scene and renderer "
+                   "of the equivalence section (default 20)")
+    c.add_argument("--render-test-repetitions", type=int, metavar="N", help="with --mitsuba-data: repetitions of "
+                   "the equivalence section's render-test scene (default: --equivalence-repetitions)")
     c.add_argument("--criterion-repetitions", type=int, default=8, help="repetitions of the criterion section "
                    "(default 8)")
     v = sub.add_parser("coverage", help="write reports/mitsuba_scenes.md: which of Mitsuba's own scenes (a local "
@@ -388,7 +391,8 @@ def _run(args) -> int:
         if args.only is None:
             report(args.output, args.repetitions)
         if args.only in (None, "equivalence"):
-            calibration_equivalence.update(args.output, args.equivalence_repetitions)
+            calibration_equivalence.update(args.output, args.equivalence_repetitions, args.mitsuba_data,
+                                           args.render_test_repetitions)
         if args.mitsuba_data is not None:
             mitsuba_criterion.update(args.output, args.mitsuba_data, args.criterion_repetitions)
         print(args.output)

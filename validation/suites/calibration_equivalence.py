@@ -41,6 +41,9 @@ from ..verdict.stats import Margin, block_means, compare
 SCENES = {"room": "mitsuba_scenes/hexagon_room.xml", "cornell_box": "mitsuba_scenes/cornell_box.xml",
           "caustic": "mitsuba_scenes/caustic.xml"}
 MAX_DEPTH = {"room": 4, "cornell_box": -1, "caustic": -1}
+RENDER_TEST = "tests/scenes/bsdf_spheres/test_arealight_path.xml"   # in mitsuba-renderer/mitsuba-data: Mitsuba's
+# render-test scene of the issue's rows, at its own 48 x 48 and depth; its image mean is noisy, so the pilot rarely
+# decides and the planned stage does: the regime where a false "equivalent" at the margin can happen
 RENDERERS = ("mitsuba", "path")         # the renderer under test; the reference is Mitsuba's path
 SCALE = 4                               # the check's default budget has SCALE^2 x the samples: standard errors / 4
 PILOT = protocol.SPP // SCALE ** 2      # the pilot's spp per pass
@@ -84,8 +87,21 @@ class Repetition:
         return self.data[name]
 
 
-def repetition(scene: str, renderer: str, r: int, cache: Path = CACHE) -> Repetition:
-    scene_plan = plan(SCENES[scene], size=protocol.SIZE, max_depth=MAX_DEPTH[scene])
+def _plan(scene: str, mitsuba_data: Path | None):
+    if scene == "arealight":
+        return plan(mitsuba_data / RENDER_TEST, size=None)
+    return plan(SCENES[scene], size=protocol.SIZE, max_depth=MAX_DEPTH[scene])
+
+
+def cells(mitsuba_data: Path | None = None) -> list[tuple[str, str]]:
+    """(renderer under test, scene): both renderers on the project's scenes; with a copy of mitsuba-data,
+    Mitsuba on its render-test scene too (a strict null comparison: whether the tracer agrees with Mitsuba there
+    is for the render tests, reports/mitsuba_tests.md)."""
+    return [(r, s) for r in RENDERERS for s in SCENES] + ([("mitsuba", "arealight")] if mitsuba_data else [])
+
+
+def repetition(scene: str, renderer: str, r: int, cache: Path = CACHE, mitsuba_data: Path | None = None) -> Repetition:
+    scene_plan = _plan(scene, mitsuba_data)
     key = scene_plan.content_key(passes=protocol.PASSES, seed=SEED, renderer=renderer, design="atoms")
     sides = {"test": MitsubaRenderer() if renderer == "mitsuba" else TracerRenderer(renderer), "ref": MitsubaRenderer()}
 
@@ -105,16 +121,18 @@ def sequence(rep: Repetition, alpha: float, margin: Margin, scale: float = 1.0) 
     return Outcome(seq.comparison.verdict, seq.stage, seq.spent)
 
 
-def measure(repetitions: int, cache: Path = CACHE) -> list[dict]:
+def measure(repetitions: int, cache: Path = CACHE, mitsuba_data: Path | None = None,
+            render_test_repetitions: int | None = None) -> list[dict]:
     """Per renderer, scene and bias: how many sequences ended equivalent, disagree, inconclusive, and the
     budget each verdict took; repetition by repetition over every cell, so that an interrupted run leaves
-    the cells balanced."""
-    cells = [(renderer, scene) for renderer in RENDERERS for scene in SCENES]
-    outcomes: dict[tuple, list[Outcome]] = {(c, k): [] for c in cells for k in BIASES}
-    seconds: dict[tuple, list[float]] = {c: [] for c in cells}
-    for r in tqdm(range(repetitions), desc="equivalence repetitions", unit="repetition"):
-        for renderer, scene in cells:
-            rep = repetition(scene, renderer, r, cache)
+    the cells balanced (the render-test scene's cell: `render_test_repetitions`, default `repetitions`)."""
+    grid = cells(mitsuba_data)
+    wanted = {c: render_test_repetitions or repetitions if c[1] == "arealight" else repetitions for c in grid}
+    outcomes: dict[tuple, list[Outcome]] = {(c, k): [] for c in grid for k in BIASES}
+    seconds: dict[tuple, list[float]] = {c: [] for c in grid}
+    for r in tqdm(range(max(wanted.values())), desc="equivalence repetitions", unit="repetition"):
+        for renderer, scene in (c for c in grid if r < wanted[c]):
+            rep = repetition(scene, renderer, r, cache, mitsuba_data)
             for k in BIASES:
                 outcomes[(renderer, scene), k].append(sequence(rep, ALPHA, MARGIN, 1 - k * MARGIN.image))
             seconds[renderer, scene].append(rep.seconds)
@@ -163,15 +181,18 @@ def _pool(rows: list[dict]) -> dict:
     return out
 
 
-def markdown(rows: list[dict], repetitions: int) -> list[str]:
+def markdown(rows: list[dict]) -> list[str]:
     lines = [
         SECTION, "",
         f"`validate check --margin {MARGIN.image / SCALE:.0%}` (block margin {MARGIN.block / SCALE:.0%}) replayed as "
         f"it decides (validation/suites/calibration_equivalence.py): a pilot stage, then stages whose samples per pass it "
         f"plans from the stage before, at most 3, each at level alpha / 3 (alpha {ALPHA:g}: a level whose rates "
-        f"{repetitions} repetitions can resolve). {repetitions} repetitions per scene ({', '.join(SCENES)}) and "
-        f"renderer under test: Mitsuba's path, or the tracer's path, against Mitsuba's path; {protocol.PASSES} "
-        f"passes a side, {protocol.SIZE} x {protocol.SIZE}. **A reduced grid**: a pilot of {PILOT} spp per pass and "
+        f"these repetitions can resolve). Repetitions per scene and renderer under test (n in the per-scene table): "
+        f"Mitsuba's path, or the tracer's path, against Mitsuba's path, on the project's {', '.join(SCENES)} at "
+        f"{protocol.SIZE} x {protocol.SIZE}, and (Mitsuba only: a strict null comparison) on "
+        f"`arealight`, Mitsuba's render-test scene {RENDER_TEST} of mitsuba-renderer/mitsuba-data at its own "
+        f"48 x 48, whose noisy image mean the pilot rarely decides; {protocol.PASSES} passes a side. "
+        "**A reduced grid**: a pilot of {PILOT} spp per pass and "
         f"at most {MAX_SPP}, {SCALE ** 2} times fewer than the check's defaults ({protocol.SPP}, up to "
         f"{protocol.MAX_SPP}), with margins {SCALE} times wider to match (standard errors are {SCALE} times larger); "
         "its passes are more skewed than the default's. The test side is scaled by 1 - k x margin (k = 0: a null "
@@ -181,39 +202,45 @@ def markdown(rows: list[dict], repetitions: int) -> list[str]:
         "and `equivalent` at k = 0. Clopper-Pearson 95% intervals. Budget: the samples per pixel each side "
         "rendered over the stages the verdict took (passes x spp, summed), quoted at the default budget "
         f"(x {SCALE ** 2}): median (largest).", "",
-        "| renderer under test | bias (x margin) | equivalent | disagree | inconclusive | budget of equivalent | "
-        "budget of disagree | budget of inconclusive |", "|---|---:|---|---|---:|---|---|---|"]
-    for renderer in RENDERERS:
+        "| renderer under test | scenes | bias (x margin) | equivalent | disagree | inconclusive | budget of "
+        "equivalent | budget of disagree | budget of inconclusive |", "|---|---|---:|---|---|---:|---|---|---|"]
+    groups = [(renderer, "project's 3", lambda r, x=renderer: r["renderer"] == x and r["scene"] in SCENES)
+              for renderer in RENDERERS]
+    if any(r["scene"] == "arealight" for r in rows):
+        groups.append(("mitsuba", "arealight", lambda r: r["scene"] == "arealight"))
+    for renderer, label, chosen in groups:
         for k in BIASES:
-            p = _pool([r for r in rows if r["renderer"] == renderer and r["bias"] == k])
-            lines.append(f"| {renderer} | {k:g} | {_rate(p['equivalent'], p['n'])} | {_rate(p['disagree'], p['n'])} "
-                         f"| {p['inconclusive']}/{p['n']} | {_budget(p['spent_equivalent'])} | "
-                         f"{_budget(p['spent_disagree'])} | {_budget(p['spent_inconclusive'])} |")
+            p = _pool([r for r in rows if chosen(r) and r["bias"] == k])
+            lines.append(f"| {renderer} | {label} | {k:g} | {_rate(p['equivalent'], p['n'])} | "
+                         f"{_rate(p['disagree'], p['n'])} | {p['inconclusive']}/{p['n']} | "
+                         f"{_budget(p['spent_equivalent'])} | {_budget(p['spent_disagree'])} | "
+                         f"{_budget(p['spent_inconclusive'])} |")
     lines += ["", "Per scene: equivalent / disagree / inconclusive at each bias, and the minutes this machine "
               "rendered for the cell (both sides, all repetitions):", "",
-              "| renderer under test | scene | " + " | ".join(f"k = {k:g}" for k in BIASES) + " | minutes |",
-              "|---|---|" + "---|" * len(BIASES) + "---:|"]
-    for renderer in RENDERERS:
-        for scene in SCENES:
-            cells = [r for r in rows if r["renderer"] == renderer and r["scene"] == scene]
-            if cells:
-                lines.append(f"| {renderer} | {scene} | " + " | ".join(
-                    f"{c['equivalent']} / {c['disagree']} / {c['inconclusive']}" for c in cells)
-                    + f" | {cells[0]['seconds_rendered'] / 60:.1f} |")
+              "| renderer under test | scene | n | " + " | ".join(f"k = {k:g}" for k in BIASES) + " | minutes |",
+              "|---|---|---:|" + "---|" * len(BIASES) + "---:|"]
+    for renderer, scene in dict.fromkeys((r["renderer"], r["scene"]) for r in rows):
+        cells = [r for r in rows if r["renderer"] == renderer and r["scene"] == scene]
+        if cells:
+            lines.append(f"| {renderer} | {scene} | {cells[0]['n']} | " + " | ".join(
+                f"{c['equivalent']} / {c['disagree']} / {c['inconclusive']}" for c in cells)
+                + f" | {cells[0]['seconds_rendered'] / 60:.1f} |")
     return lines
 
 
 SECTION = "## Equivalence: false alarms, false \"equivalent\" and power"
 
 
-def update(out: Path, repetitions: int) -> Path:
+def update(out: Path, repetitions: int, mitsuba_data: Path | None = None,
+           render_test_repetitions: int | None = None) -> Path:
     """Measures (cached renders) and writes this section into `out` (reports/calibration.md), replacing an
     earlier one and keeping every other section; its rows go to calibration_equivalence.json beside it."""
     from ..reports.provenance import replace_section, write_json
 
-    rows, injected = measure(repetitions), faults()
+    rows = measure(repetitions, mitsuba_data=mitsuba_data, render_test_repetitions=render_test_repetitions)
+    injected = faults()
     write_json(out.with_name("calibration_equivalence.json"), {"sequences": rows, "faults": injected})
-    return replace_section(out, SECTION, markdown(rows, repetitions) + [""] + fault_table(injected),
+    return replace_section(out, SECTION, markdown(rows) + [""] + fault_table(injected),
                            before="## Time per check")
 
 
