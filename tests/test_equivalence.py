@@ -12,7 +12,7 @@ from scipy import stats
 
 from tracer.scene import SceneError
 from validation import cli
-from validation.verdict.check import sequential, stages
+from validation.verdict.check import next_spp, sequential, stages
 from validation.verdict.scenefile import plan
 from validation.verdict.stats import POWER, Margin, compare
 
@@ -106,6 +106,19 @@ def test_the_second_stage_is_sized_for_an_unbiased_renderer():
     seq = sequential(decide, 64, 8192, 0.05, Margin(0.01, 0.2))
     assert calls[0][0] == 64 and seq.stage >= 2
     assert calls[1][0] == pytest.approx(64 * pilot.needed_unbiased, rel=0.25) and calls[1][0] > 64
+
+
+def test_a_stage_is_planned_within_the_budget_and_only_where_it_can_decide():
+    """next_spp: the second stage for an unbiased renderer, a later one for the measured difference, never
+    fewer spp than the stage before, at most --max-spp, and none where the measured difference lies at or
+    beyond the margin or a stage at --max-spp already fell short."""
+    from types import SimpleNamespace
+
+    c = SimpleNamespace(needed_unbiased=50.0, needed=float("inf"))
+    assert next_spp(c, 64, 1, 8192) == 3200 and next_spp(c, 3200, 2, 8192) is None
+    c = SimpleNamespace(needed_unbiased=1000.0, needed=3.0)
+    assert next_spp(c, 64, 1, 8192) == 8192 and next_spp(c, 8192, 2, 8192) is None
+    assert next_spp(c, 1000, 2, 8192) == 3000 and next_spp(SimpleNamespace(needed=0.5), 1000, 2, 8192) == 1000
 
 
 def test_a_planned_stage_has_the_power_it_was_planned_for():
