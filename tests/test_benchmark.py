@@ -178,3 +178,37 @@ def test_the_memory_section_sets_the_plans_estimate_against_the_measured_peak(tm
     assert f"| mitsuba_scenes/cornell_box.xml | 24 x 16, 2 spp | {row['estimate_mib']:.0f} | " \
            f"{row['peak_mib']:.0f} | {ratio:.2f} |" in lines
     assert any("`--mitsuba-data` not given" in line for line in lines)
+
+
+def test_the_scenes_section_times_both_renderers_interleaved_and_labels_its_caps(tmp_path, monkeypatch):
+    from validation.benchmark import scene_bench
+
+    chosen = scene_bench.select(scene_bench.candidates(None), ["mitsuba_scenes/cornell_box.xml"])
+    assert [n for n, _ in chosen] == ["mitsuba_scenes/cornell_box.xml"]
+    order = []
+    monkeypatch.setattr(scene_bench, "_timed", lambda command, env: (order.append(command[0]) or 1.0, ""))
+    section = scene_bench.scenes(lambda _: None, globs=["mitsuba_scenes/cornell_box.xml"], scale=0.1, runs=2)
+    row = section["rows"]["mitsuba_scenes/cornell_box.xml"]
+    assert row["tracer"]["seconds"] == [1.0, 1.0] and row["ratio"] == 1.0
+    mitsuba = [c.endswith("mitsuba") for c in order]
+    assert mitsuba == [False, True, False, True, True, False]     # warm-up, then each renderer first in turn
+    text = "\n".join(scene_bench.markdown(section, None))
+    assert "every film scaled by 0.1" in text and "median ratio **1.00**" in text
+
+
+def test_a_scaled_scene_keeps_everything_but_its_film_size():
+    from validation.verdict.scenefile import resized_xml
+
+    text = resized_xml(benchmark.ROOT / "mitsuba_scenes" / "cornell_box.xml", 30, 20)
+    assert 'name="width" value="30"' in text and 'name="height" value="20"' in text
+    assert "<integrator" in text and "<emitter" in text
+
+
+def test_a_scene_is_rendered_by_both_command_lines():
+    from validation.benchmark import scene_bench
+
+    path = benchmark.ROOT / "mitsuba_scenes" / "cornell_box.xml"
+    row = scene_bench.measure_scene(path, 0.05, 1, lambda _: None)
+    assert row["tracer"]["error"] == "" and row["Mitsuba"]["error"] == "", row
+    assert (row["width"], row["height"]) == (13, 13)               # 256 x 256 scaled
+    assert row["ratio"] > 0

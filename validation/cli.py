@@ -82,10 +82,20 @@ def _parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="time the tracer and Mitsuba side by side: reports/performance.md")
     b.add_argument("--output", "-o", type=Path, default=Path("reports"))
     b.add_argument("--only", nargs="+", metavar="SECTION", help="run only these sections (side_by_side, tables, "
-                   "ceiling, cold, specialisation, scaling, meshes, memory), keeping the others from the previous "
-                   "performance.json; the report says which run each section comes from")
+                   "ceiling, cold, specialisation, scaling, meshes, memory, scenes), keeping the others from the "
+                   "previous performance.json; the report says which run each section comes from. A folder among "
+                   "them is taken as --mitsuba-data (`--only scenes DIR`)")
     b.add_argument("--mitsuba-data", type=Path, metavar="DIR", help="a copy of mitsuba-renderer/mitsuba-data: the "
-                   "memory section measures its docs scenes too")
+                   "memory section measures its docs scenes too, the scenes section times every scene of it the "
+                   "tracer loads")
+    b.add_argument("--scenes", nargs="+", metavar="GLOB", help="scenes section: only the scenes whose name (as "
+                   "the report writes it, e.g. 'docs/scenes/shape_*', 'mitsuba_scenes/*') matches one of these")
+    b.add_argument("--scale", type=float, default=1.0, help="scenes section: every film's width and height "
+                   "multiplied by this (default 1: the scene's own; the report labels a scaled run)")
+    b.add_argument("--max-seconds", type=float, metavar="S", help="scenes section: start no scene after S seconds "
+                   "of wall time (the report lists those left out)")
+    b.add_argument("--runs", type=int, default=3, help="scenes section: timed runs of each renderer per scene "
+                   "(default 3, after a warm-up run of each)")
     q = sub.add_parser("faults", help="write reports/faults.md: which injected faults the test catches at which spp")
     q.add_argument("--output", "-o", type=Path, default=Path("reports/faults.md"))
     n = sub.add_parser("snapshot", help="render every project scene small with one Dr.Jit thread into DIR (.npy); "
@@ -425,7 +435,15 @@ def _run(args) -> int:
     if args.command == "bench":
         from .benchmark.bench import run
 
-        print(run(args.output, args.only, args.mitsuba_data))
+        only, data = args.only, args.mitsuba_data
+        if only and any(Path(x).is_dir() for x in only):
+            data = data or next(Path(x) for x in only if Path(x).is_dir())
+            only = [x for x in only if not Path(x).is_dir()]
+        if args.scale <= 0 or args.runs < 1:
+            print("validate bench: --scale must be positive and --runs at least 1", file=sys.stderr)
+            return 2
+        options = {"globs": args.scenes, "scale": args.scale, "max_seconds": args.max_seconds, "runs": args.runs}
+        print(run(args.output, only, data, options))
         return 0
     if args.command == "snapshot":
         return _snapshot(args)

@@ -24,6 +24,7 @@ from tracer.estimators import REPORT_DEPTH_OFFSET
 
 from .mesh_scene import write_mesh_scene
 from ..verdict.scene_variants import write_variant
+from .scene_bench import markdown as scene_markdown, scenes as scene_section
 
 ROOT = Path(__file__).resolve().parents[2]
 ROOM = ROOT / "mitsuba_scenes" / "hexagon_room.xml"
@@ -513,9 +514,10 @@ if __name__ == "__main__" and len(sys.argv) > 2 and sys.argv[1] == "--child":
     main_child(sys.argv[2])
 
 
-def sections(mitsuba_data: Path | None = None) -> dict:
+def sections(mitsuba_data: Path | None = None, scene_options: dict | None = None) -> dict:
     """The bench's sections by name, in the order they run (`mitsuba_data`: a copy of mitsuba-data, whose
-    docs scenes the memory section measures too)."""
+    docs scenes the memory section measures too and whose scenes the scenes section times; `scene_options`:
+    the scenes section's caps, as validation.scene_bench.scenes takes them)."""
     return {"side_by_side": lambda out, progress: side_by_side(out, progress),
             "tables": lambda out, progress: report_tables(progress),
             "ceiling": lambda out, progress: ceiling(progress),
@@ -523,17 +525,19 @@ def sections(mitsuba_data: Path | None = None) -> dict:
             "specialisation": lambda out, progress: specialisation(progress),
             "scaling": lambda out, progress: scaling(progress),
             "meshes": lambda out, progress: meshes(progress),
-            "memory": lambda out, progress: memory(progress, mitsuba_data)}
+            "memory": lambda out, progress: memory(progress, mitsuba_data),
+            "scenes": lambda out, progress: scene_section(progress, mitsuba_data, **(scene_options or {}))}
 
 
-def run(out: Path, only: list[str] | None = None, mitsuba_data: Path | None = None) -> str:
+def run(out: Path, only: list[str] | None = None, mitsuba_data: Path | None = None,
+        scene_options: dict | None = None) -> str:
     """Every measurement (or only the sections named, the others kept from the previous run's
     performance.json), then reports/performance.md and its plot; returns the markdown."""
     from datetime import datetime, timezone
 
     from tracer.errors import UserError
 
-    from ..reports.plots import performance_scaling
+    from ..reports.plots import performance_scaling, scene_ratios
 
     out.mkdir(parents=True, exist_ok=True)
     progress = lambda what: print(f"bench: {what}", file=sys.stderr, flush=True)  # noqa: E731
@@ -548,7 +552,7 @@ def run(out: Path, only: list[str] | None = None, mitsuba_data: Path | None = No
     today = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     results.setdefault("when", {})
     results.setdefault("load", {})
-    for name, section in sections(mitsuba_data).items():
+    for name, section in sections(mitsuba_data, scene_options).items():
         if not only or name in only:
             before = os.getloadavg()[0]
             results[name] = section(out, progress)
@@ -556,6 +560,9 @@ def run(out: Path, only: list[str] | None = None, mitsuba_data: Path | None = No
             results["load"][name] = [before, os.getloadavg()[0]]   # other work on the machine, 1-min averages
     previous.write_text(json.dumps(results, indent=1))
     performance_scaling(results["scaling"], out / "performance_scaling.png")
+    if "ratio" in json.dumps(results["scenes"]):
+        scene_ratios({n: r["ratio"] for n, r in results["scenes"]["rows"].items() if "ratio" in r},
+                     out / "performance_scenes.png")
     text = markdown(results)
     (out / "performance.md").write_text(text)
     return text
@@ -697,6 +704,7 @@ def markdown(r: dict) -> str:
               f"takes {by_n[largest]['Mitsuba'] / by_n[smallest]['Mitsuba']:.1f}x.", ""]
     lines += mesh_markdown(r["meshes"])
     lines += memory_markdown(r["memory"])
+    lines += scene_markdown(r["scenes"], "performance_scenes.png" if "ratio" in json.dumps(r["scenes"]) else None)
     return "\n".join(lines)
 
 

@@ -109,3 +109,19 @@ def performance_scaling(curves: dict[str, list], path: Path) -> None:
     for ax in axes:
         ax.grid(True, which="both", alpha=0.3)
     _save(fig, path)
+
+
+def scene_ratios(ratios: dict[str, float], path: Path) -> None:
+    """The tracer's whole-process time over Mitsuba's per scene, a bar each (log scale), 1 marked."""
+    names = list(ratios)
+    fig, ax = plt.subplots(figsize=(8, 0.8 + 0.24 * len(names)))
+    y = np.arange(len(names))
+    values = [ratios[n] for n in names]
+    ax.barh(y, values, color=["tab:green" if v < 1 else "tab:red" for v in values])
+    ax.axvline(1.0, color="black", lw=1)
+    ax.set_xscale("log")
+    ax.set_yticks(y, names, fontsize=7)
+    ax.invert_yaxis()
+    ax.set(xlabel="tracer / Mitsuba, whole process (below 1: the tracer is faster)")
+    ax.grid(True, axis="x", which="both", alpha=0.3)
+    _save(fig, path)

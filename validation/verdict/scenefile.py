@@ -38,13 +38,7 @@ class ScenePlan:
 
     def mitsuba_xml(self) -> str:
         """The scene's XML with the film size and max_depth written into it."""
-        root = _parse(self.path)
-        sensor = _first(root, "sensor", self.path)
-        film = sensor.find("film")
-        if film is None:
-            film = ET.SubElement(sensor, "film", {"type": "hdrfilm"})
-        _set(film, "integer", "width", str(self.width))
-        _set(film, "integer", "height", str(self.height))
+        root = _with_film_size(self.path, self.width, self.height)
         integrator = _integrator(root, self.params)
         if integrator is None:
             integrator = ET.Element("integrator", {"type": "path"})
@@ -159,6 +153,23 @@ def plan(path: str | Path, defines: dict[str, str] | None = None, size: int | No
     params |= {k: str(v) for k, v in (("width", width), ("height", height), ("max_depth", max_depth))
                if k in declared}
     return ScenePlan(path, width, height, max_depth, params, tuple(k for k in defines if k in declared))
+
+
+def _with_film_size(path: Path, width: int, height: int) -> ET.Element:
+    """The scene's XML tree, its includes inlined, with the film's width and height set."""
+    root = _parse(path)
+    sensor = _first(root, "sensor", path)
+    film = sensor.find("film")
+    if film is None:
+        film = ET.SubElement(sensor, "film", {"type": "hdrfilm"})
+    _set(film, "integer", "width", str(width))
+    _set(film, "integer", "height", str(height))
+    return root
+
+
+def resized_xml(path: Path, width: int, height: int) -> str:
+    """The scene's XML, everything else as it stands, with its film `width` x `height`."""
+    return ET.tostring(_with_film_size(Path(path), width, height), encoding="unicode")
 
 
 def files_digest(path: str | Path) -> str:

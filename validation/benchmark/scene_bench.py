@@ -1,0 +1,190 @@
+"""`validate bench --only scenes`: the tracer against Mitsuba on every scene the tracer renders, whole process.
+
+The scenes: the project's own (mitsuba_scenes/*.xml) and, given a copy of mitsuba-renderer/mitsuba-data,
+every scene of its docs/scenes, tests/scenes and scenes folders (validation.coverage.FOLDERS) that the
+tracer loads. Each at its own resolution, spp and depth: `tracer render SCENE` against `mitsuba -m
+llvm_ad_rgb SCENE`, each run a fresh process timed from start to exit (loading, BVH, compilation,
+rendering, writing the EXR). Per scene a warm-up run of each (filling Dr.Jit's kernel caches and the
+tracer's on-disk BVH cache, as a user's earlier render of the scene would), then RUNS timed runs of each,
+interleaved (the first renderer alternating), and the ratio of the medians.
+
+A shared machine seldom has time for all of them, so the set can be capped: `globs` (fnmatch patterns on
+the scene's name as the report writes it), `max_seconds` (no scene started after that much wall time; the
+report lists those left out) and `scale` (every film's width and height multiplied by it: the report
+labels such a run, whose timings weigh compilation more than a full-size run does).
+"""
+from __future__ import annotations
+
+import fnmatch
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+PROJECT = ROOT / "mitsuba_scenes"
+RUNS = 3                 # timed runs of each renderer per scene
+RENDERERS = ("tracer", "Mitsuba")
+
+
+def candidates(mitsuba_data: Path | None) -> list[tuple[str, Path]]:
+    """(name, path) of every scene the tracer loads: the project's, then mitsuba-data's (named relative to
+    its folder), in file order."""
+    import tracer
+    from tracer.errors import UserError
+
+    from ..suites.coverage import has_sensor, scene_files
+
+    paths = [(f"mitsuba_scenes/{p.name}", p) for p in sorted(PROJECT.glob("*.xml"))]
+    if mitsuba_data is not None:
+        paths += [(str(p.relative_to(mitsuba_data)), p) for p in scene_files(mitsuba_data)]
+    out = []
+    for name, path in paths:
+        try:
+            tracer.load_scene(path)
+        except (tracer.SceneError, UserError):
+            continue
+        if has_sensor(path):
+            out.append((name, path))
+    return out
+
+
+def select(scenes: list[tuple[str, Path]], globs: list[str] | None) -> list[tuple[str, Path]]:
+    """The scenes whose name matches one of `globs` (all without)."""
+    if not globs:
+        return scenes
+    return [(n, p) for n, p in scenes if any(fnmatch.fnmatch(n, g) for g in globs)]
+
+
+def _settings(path: Path, scale: float) -> tuple[int, int, int, int]:
+    """The scene's film width and height (scaled), spp and max_depth, as the tracer reads them."""
+    import tracer
+
+    scene = tracer.load_scene(path)
+    w, h = scene.camera.width, scene.camera.height
+    if scale != 1:
+        w, h = max(1, round(w * scale)), max(1, round(h * scale))
+    return w, h, scene.spp, scene.max_depth
+
+
+def _commands(path: Path, width: int, height: int, scale: float, tmp: Path) -> dict[str, list[str]]:
+    """The two command lines; scaled, the tracer takes --width/--height and Mitsuba a copy of the scene's XML
+    with its film resized (validation.scenefile), its resources found beside the original (-a)."""
+    tracer = [sys.executable, "-m", "tracer.cli", "render", str(path), "-o", str(tmp / "t.exr"), "--no-png",
+              "--quiet"]
+    scene = path
+    if scale != 1:
+        from ..verdict.scenefile import resized_xml
+
+        tracer += ["--width", str(width), "--height", str(height)]
+        scene = tmp / "scene.xml"
+        scene.write_text(resized_xml(path, width, height))
+    mitsuba = [str(Path(sys.executable).parent / "mitsuba"), "-m", "llvm_ad_rgb", "-a", str(path.parent.resolve()),
+               "-o", str(tmp / "m.exr"), str(scene)]
+    return {"tracer": tracer, "Mitsuba": mitsuba}
+
+
+def _timed(command: list[str], env: dict) -> tuple[float, str]:
+    """Wall seconds of the command in a fresh process, and its error ('' if it exited 0)."""
+    start = time.perf_counter()
+    run = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
+    seconds = time.perf_counter() - start
+    error = "" if run.returncode == 0 else (run.stderr.strip().splitlines() or [f"exit {run.returncode}"])[-1][:200]
+    return seconds, error
+
+
+def measure_scene(path: Path, scale: float, runs: int, progress) -> dict:
+    """One scene: a warm-up run of each renderer, then `runs` timed runs of each, interleaved."""
+    width, height, spp, depth = _settings(path, scale)
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")   # as the tracer command runs (tracer.cli.main)
+    row = {"width": width, "height": height, "spp": spp, "max_depth": depth}
+    with tempfile.TemporaryDirectory() as tmp:
+        commands = _commands(path, width, height, scale, Path(tmp))
+        for name in RENDERERS:
+            seconds, error = _timed(commands[name], env)
+            row[name] = {"warm_up": seconds, "seconds": [], "error": error}
+        for k in range(runs):
+            for name in RENDERERS[k % 2:] + RENDERERS[:k % 2]:   # each renderer first in turn
+                if row[name]["error"]:
+                    continue
+                progress(f"{path.name}: {name}, run {k + 1} of {runs}")
+                seconds, error = _timed(commands[name], env)
+                row[name]["seconds"].append(seconds)
+                row[name]["error"] = error
+    for name in RENDERERS:
+        x = row[name]
+        x["median"] = statistics.median(x["seconds"]) if x["seconds"] and not x["error"] else None
+    if row["tracer"]["median"] and row["Mitsuba"]["median"]:
+        row["ratio"] = row["tracer"]["median"] / row["Mitsuba"]["median"]
+    return row
+
+
+def scenes(progress, mitsuba_data: Path | None = None, globs: list[str] | None = None, scale: float = 1.0,
+           max_seconds: float | None = None, runs: int = RUNS) -> dict:
+    """The section's results: per scene its settings, each renderer's runs and median, and their ratio."""
+    chosen = select(candidates(mitsuba_data), globs)
+    start = time.perf_counter()
+    rows, skipped = {}, []
+    for i, (name, path) in enumerate(chosen):
+        if max_seconds is not None and time.perf_counter() - start > max_seconds:
+            skipped = [n for n, _ in chosen[i:]]
+            break
+        progress(f"scenes: {name} ({i + 1} of {len(chosen)})")
+        rows[name] = measure_scene(path, scale, runs, progress)
+    return {"rows": rows, "skipped": skipped, "globs": globs or [], "scale": scale, "max_seconds": max_seconds,
+            "runs": runs, "docs": mitsuba_data is not None}
+
+
+def summary(section: dict) -> tuple[float, str, float] | None:
+    """(median ratio, worst scene, its ratio) over the scenes both renderers rendered; None if none did."""
+    ratios = {n: r["ratio"] for n, r in section["rows"].items() if "ratio" in r}
+    if not ratios:
+        return None
+    worst = max(ratios, key=ratios.get)
+    return statistics.median(ratios.values()), worst, ratios[worst]
+
+
+def markdown(section: dict, plot: str | None) -> list[str]:
+    """The section of reports/performance.md: how the run was capped, the table, the median and the worst."""
+    rows, scale = section["rows"], section["scale"]
+    sources = "the project's scenes" + (" and every scene of `mitsuba-renderer/mitsuba-data` the tracer loads"
+                                        if section["docs"] else " (mitsuba-data not given)")
+    caps = []
+    if section["globs"]:
+        caps.append("only the scenes matching " + ", ".join(f"`{g}`" for g in section["globs"]))
+    if scale != 1:
+        caps.append(f"**every film scaled by {scale:g}** (width and height; spp and depth the scene's own): "
+                    "compilation weighs more than at full size")
+    if section["skipped"]:
+        caps.append(f"stopped after {section['max_seconds']:g} s of wall time: {len(section['skipped'])} scenes "
+                    "not measured (" + ", ".join(f"`{n}`" for n in section["skipped"]) + ")")
+    lines = ["## Every scene: whole process, the tracer against Mitsuba", "",
+             f"{sources.capitalize()}, each at its own resolution, spp and max_depth: `tracer render SCENE` "
+             "against `mitsuba -m llvm_ad_rgb SCENE`, each run a fresh process timed from start to exit (loading, "
+             "BVH, kernel compilation, rendering, writing the EXR). Per scene a warm-up run of each (filling Dr.Jit's "
+             f"kernel caches and the tracer's on-disk BVH cache), then {section['runs']} timed runs of each, "
+             "interleaved, the first renderer alternating; medians. Ratio: the tracer's median over Mitsuba's "
+             "(below 1: the tracer is faster).", ""]
+    if caps:
+        lines += ["This run: " + "; ".join(caps) + ".", ""]
+    lines += ["| scene | size | spp | max_depth | tracer [s] | Mitsuba [s] | ratio |", "|---|---|---:|---:|---:|---:|---:|"]
+    for name, r in rows.items():
+        cells = []
+        for renderer in RENDERERS:
+            x = r[renderer]
+            cells.append(f"failed: {x['error']}" if x["error"] else
+                         f"{x['median']:.2f} ({min(x['seconds']):.2f}–{max(x['seconds']):.2f})")
+        ratio = f"{r['ratio']:.2f}" if "ratio" in r else "–"
+        lines.append(f"| `{name}` | {r['width']} x {r['height']} | {r['spp']} | {r['max_depth']} | {cells[0]} | "
+                     f"{cells[1]} | {ratio} |")
+    found = summary(section)
+    if found:
+        median, worst, worst_ratio = found
+        n = sum("ratio" in r for r in rows.values())
+        lines += ["", f"Over {n} scenes: median ratio **{median:.2f}**, worst **{worst_ratio:.2f}** (`{worst}`)."]
+    if plot:
+        lines += ["", f"![the tracer's whole-process time over Mitsuba's, per scene]({plot})"]
+    return lines + [""]
