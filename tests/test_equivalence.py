@@ -186,10 +186,10 @@ def test_every_refusal_comes_before_any_pass(tmp_path, capsys):
     marker = tmp_path / "rendered"
     command = f"{sys.executable} -c \"open('{marker}', 'w')\" {{output}}"
     start = time.perf_counter()
-    assert cli.main(["check", str(moment_scene(tmp_path, "volpath")), "--renderer", command]) == 2
+    assert cli.main(["check", str(moment_scene(tmp_path, "prbvolpath")), "--renderer", command]) == 2
     assert time.perf_counter() - start < 2
     err = capsys.readouterr().err.strip()
-    assert "volpath" in err and "\n" not in err and not marker.exists()
+    assert "prbvolpath" in err and "\n" not in err and not marker.exists()
 
 
 def test_margin_arguments_are_refused_in_one_line(capsys):
@@ -209,11 +209,11 @@ def test_a_parameter_inside_a_refused_element_is_not_called_unused(tmp_path):
     text = (SCENES / "stress" / "glass_sphere.xml").read_text()
     start, end = text.index("<integrator"), text.index("</integrator>") + len("</integrator>")
     scene = tmp_path / "refused.xml"
-    scene.write_text(text[:start] + '<default name="depth" value="3"/><integrator type="volpath">'
+    scene.write_text(text[:start] + '<default name="depth" value="3"/><integrator type="prbvolpath">'
                      '<integer name="max_depth" value="$depth"/></integrator>' + text[end:])
     with pytest.raises(SceneError) as e:
         tracer.load_scene(scene, depth="4")
-    assert "volpath" in str(e.value) and "uses no parameter" not in str(e.value)
+    assert "prbvolpath" in str(e.value) and "uses no parameter" not in str(e.value)
 
 
 @pytest.mark.slow

@@ -36,8 +36,8 @@ def test_nested_integrator_given_by_parameter_as_in_mitsubas_tests(tmp_path):
             '</integrator></integrator>' + LIT)
     path = write_scene(tmp_path, body)
     assert load_scene(path).max_depth == 2
-    (error,) = scene_errors(path, integrator="volpath")
-    assert "unsupported integrator plugin 'volpath'" in error
+    (error,) = scene_errors(path, integrator="prbvolpath")
+    assert "unsupported integrator plugin 'prbvolpath'" in error
 
 
 @pytest.mark.parametrize("body, snippet, words", [

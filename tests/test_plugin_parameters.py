@@ -76,7 +76,13 @@ VALUES = {
     "flip_invalid_normals": '<boolean name="flip_invalid_normals" value="false"/>',
     "use_shadowing_function": '<boolean name="use_shadowing_function" value="false"/>',
     "value": '<vector name="value" value="0.2, 0.3, 0.4"/>',
-    "accel": '<boolean name="accel" value="false"/>', "texture": '<texture type="checkerboard" name="texture"/>', "intensity": '<rgb name="intensity" value="2, 3, 4"/>',
+    "accel": '<boolean name="accel" value="false"/>',
+    "albedo": '<rgb name="albedo" value="0.2, 0.3, 0.4"/>', "sigma_t": '<rgb name="sigma_t" value="2, 3, 4"/>',
+    "sample_emitters": '<boolean name="sample_emitters" value="false"/>',
+    "has_spectral_extinction": '<boolean name="has_spectral_extinction" value="false"/>',
+    "g": '<float name="g" value="0.3"/>',
+    "use_grid_bbox": '<boolean name="use_grid_bbox" value="true"/>', "max_value": '<float name="max_value" value="9"/>',
+    "grid": '<ref name="grid" id="nothing"/>', "texture": '<texture type="checkerboard" name="texture"/>', "intensity": '<rgb name="intensity" value="2, 3, 4"/>',
 }
 HONOURED = "honoured"
 NO_EFFECT = "no effect on the image"
@@ -109,6 +115,12 @@ EXPECTED = {
                 "filename": HONOURED, "scale": HONOURED, "mis_compensation": NO_EFFECT, "bitmap": REFUSED,
                 "position": HONOURED, "intensity": HONOURED, "cutoff_angle": HONOURED, "beam_width": HONOURED,
                 "texture": REFUSED, "direction": HONOURED, "irradiance": HONOURED},
+    "medium": {"albedo": HONOURED, "sigma_t": HONOURED, "scale": HONOURED, "sample_emitters": HONOURED,
+               "has_spectral_extinction": HONOURED},
+    "phase": {"g": HONOURED},
+    "volume": {"value": HONOURED, "to_world": HONOURED, "filename": HONOURED, "filter_type": HONOURED,
+               "wrap_mode": HONOURED, "use_grid_bbox": HONOURED, "raw": NO_EFFECT, "accel": NO_EFFECT,
+               "max_value": REFUSED, "grid": REFUSED, "data": REFUSED},
 }
 SPECIAL = {   # (tag, kind, parameter) whose handling differs from the tag's other plugins
     ("shape", "cylinder", "silhouette_sampling_weight"): NO_EFFECT,
@@ -163,6 +175,8 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
             p = '<float name="value" value="0.5"/>'
         body = (f'<shape type="rectangle"><bsdf type="diffuse"><texture type="{kind}" name="reflectance">{p}'
                 '</texture></bsdf></shape>')
+    elif tag in ("medium", "phase", "volume"):
+        body = _medium_xml(tag, kind, param, p)
     elif kind in ("constant", "point", "spot", "directional"):
         if kind == "directional" and param == "to_world":   # a translation does not turn it
             p = '<transform name="to_world"><rotate x="1" angle="30"/></transform>'
@@ -178,6 +192,34 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
 VALUES["filename"] = ""
 
 
+def _medium_xml(tag: str, kind: str, param: str | None, p: str) -> str:
+    """A sphere holding a heterogeneous medium (its sigma_t the volume of kind, its phase function of kind),
+    or the medium of kind; rendered by volpath."""
+    medium, phase, volume = "heterogeneous", "isotropic", "constvolume"
+    if tag == "volume" and param == "value":        # a colour, not the vector of VALUES
+        p = '<rgb name="value" value="2, 3, 4"/>'
+    if tag == "medium":
+        medium, p_medium, p_phase, p_volume = kind, p, "", ""
+    else:
+        phase, volume = (kind, volume) if tag == "phase" else (phase, kind)
+        p_medium, p_phase, p_volume = ("", p, "") if tag == "phase" else ("", "", p)
+    if volume == "gridvolume":
+        p_volume = p_volume.replace('value="clamp"', 'value="repeat"')   # clamp is its default
+        p_volume += f'<string name="filename" value="{"b.vol" if param == "filename" else "a.vol"}"/>'
+    sigma = "" if "sigma_t" in p_medium or medium == "homogeneous" else \
+        f'<volume type="{volume}" name="sigma_t">{p_volume}</volume>'
+    return ('<integrator type="volpath"/>'
+            f'<medium type="{medium}" id="fog">{p_medium}{sigma}<phase type="{phase}">{p_phase}</phase></medium>'
+            '<shape type="sphere"><bsdf type="null"/><ref name="interior" id="fog"/></shape>')
+
+
+def write_vol(path, data: np.ndarray, bbox=((0, 0, 0), (1, 1, 1))) -> None:
+    """A Mitsuba .vol file (version 3, float32) of data (z, y, x, channels)."""
+    nz, ny, nx, c = data.shape
+    path.write_bytes(b"VOL\x03" + np.array([1, nx, ny, nz, c], "<i4").tobytes()
+                     + np.asarray(bbox, "<f4").tobytes() + data.astype("<f4").tobytes())
+
+
 def _fingerprint(s) -> bytes:
     cam = s.camera
     return pickle.dumps((cam.to_world.tolist(), cam.fov, cam.fov_axis, cam.near_clip, cam.far_clip, cam.width,
@@ -189,7 +231,16 @@ def _fingerprint(s) -> bytes:
                          [(c.to_world.tolist(), c.flipped) for c in s.cylinders],
                          None if s.envmap is None else (s.envmap.image.tolist(), s.envmap.to_world.tolist()),
                          [(light.position.tolist(), light.intensity, light.cone()) for light in s.point_lights],
-                         [(light.direction.tolist(), light.irradiance) for light in s.directional_lights]))
+                         [(light.direction.tolist(), light.irradiance) for light in s.directional_lights],
+                         [(m.kind, m.scale, m.phase, m.sample_emitters, m.spectral_extinction,
+                           *(_volume_print(v) for v in (m.sigma_t, m.albedo))) for m in s.media],
+                         sorted(s.shape_media.values()), s.camera_medium))
+
+
+def _volume_print(v):
+    grid = getattr(v, "data", None)
+    return (getattr(v, "value", None), v.to_world.tolist(), None if grid is None else grid.tolist(),
+            getattr(v, "filter", None), getattr(v, "wrap", None))
 
 
 def _outcome(tmp_path, tag, kind, param) -> str:
@@ -203,6 +254,8 @@ def _outcome(tmp_path, tag, kind, param) -> str:
     from PIL import Image
     for name, seed in (("a.png", 1), ("b.png", 2)):
         Image.fromarray(np.random.default_rng(seed).integers(0, 256, (4, 8, 3), dtype=np.uint8)).save(tmp_path / name)
+    write_vol(tmp_path / "a.vol", np.arange(8.0).reshape(2, 2, 2, 1), ((0, 0, 0), (2, 1, 1)))
+    write_vol(tmp_path / "b.vol", np.arange(8.0)[::-1].reshape(2, 2, 2, 1))
     for name, value in (("a.exr", 1.0), ("b.exr", 2.0)):
         OpenEXR.File({"type": OpenEXR.scanlineimage}, {"RGB": np.full((4, 8, 3), value, np.float32)}).write(
             str(tmp_path / name))
@@ -231,12 +284,13 @@ def test_every_parameter_has_an_expectation():
     assert set(VALUES) >= {p for _, _, p in CASES}
 
 
-OBJECTS = ("bitmap", "srf", "texture", "data")   # parameters that take objects: not given in the Mitsuba check
+OBJECTS = ("bitmap", "srf", "texture", "data", "grid")   # parameters that take objects: not given in the Mitsuba check
 
 
 def _mitsuba_xml(tmp_path, tag: str, kind: str, param: str) -> str:
     """The plugin alone, given `param`, as Mitsuba reads it (a file where the plugin needs one)."""
-    files = {"obj": "a.obj", "ply": "a.ply", "serialized": "a.serialized", "envmap": "a.exr", "bitmap": "a.png"}
+    files = {"obj": "a.obj", "ply": "a.ply", "serialized": "a.serialized", "envmap": "a.exr", "bitmap": "a.png",
+             "gridvolume": "a.vol"}
     extra = f'<string name="filename" value="{tmp_path / files[kind]}"/>' if kind in files else ""
     value = extra if param == "filename" else VALUES[param] + extra
     value += {"twosided": '<bsdf type="diffuse"/>', "moment": '<integrator type="path"/>'}.get(kind, "")
@@ -261,6 +315,7 @@ def test_mitsuba_reads_every_listed_parameter(tmp_path, tag, kind, param, mi):
         str(tmp_path / "a.exr"))
     from PIL import Image
     Image.fromarray(np.zeros((4, 8, 3), np.uint8)).save(tmp_path / "a.png")
+    write_vol(tmp_path / "a.vol", np.ones((2, 2, 2, 1)))
     try:
         mi.load_string(_mitsuba_xml(tmp_path, tag, kind, param))
     except Exception as e:

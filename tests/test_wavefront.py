@@ -88,7 +88,7 @@ def _paths(geo, scene, trace):
     rng = seeded_rng(sample, 7)
     o, d, t_min, t_max, _, _ = primary_rays(scene.camera, sample // 4, rng)
     path = path_integrator.PathState(o, d, t_min, t_max, Bool(True))
-    L, rays = trace(geo, rng, path, opaque_u32(5), opaque_u32(scene.rr_depth))
+    L, rays = trace(geo, rng, path, path_integrator._bounce, opaque_u32(5), opaque_u32(scene.rr_depth))
     return L.numpy(), rays.numpy()
 
 

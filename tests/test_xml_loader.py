@@ -197,7 +197,7 @@ def test_missing_scene_file(tmp_path):
     ('<shape type="rectangle">\n        <bsdf type="pplastic"/>\n    </shape>', 'type="pplastic"',
      ["pplastic", "supported", "diffuse"]),
     ('<shape type="rectangle">\n        <emitter type="spot"/>\n    </shape>', 'type="spot"', ["spot", "supported"]),
-    ('<integrator type="volpath"/>', 'type="volpath"', ["volpath", "supported", "path"]),
+    ('<integrator type="prbvolpath"/>', 'type="prbvolpath"', ["prbvolpath", "supported", "path"]),
 ])
 def test_unsupported_plugin(tmp_path, body, snippet, words):
     path = write_scene(tmp_path, body, name="plugins.xml")

@@ -19,6 +19,7 @@ from .jit import HOST_FLOAT, NO_PRIM, Array3f, Bool, Float, UInt32, opaque_u32, 
 from .lights import LightSample, select_sample
 from .lights.envmap import EnvmapKernel
 from .materials import MaterialTables
+from .media import MediaKernel
 from .sampling import square_to_uniform_sphere
 from .scene import Scene
 from .shapes import BVH_THRESHOLD, SETS, MeshSet, RectangleSet, ShapeSet, SphereSet
@@ -65,6 +66,7 @@ def goes_bounce_by_bounce(has_bvh: bool) -> bool:
 
 
 _recorded: list | None = None    # see recorded_queries
+PASSING = ("null", "thindielectric")    # material kinds with a null lobe (materials.bsdf's null_transmission)
 
 
 @contextmanager
@@ -121,6 +123,12 @@ class SceneGeometry:
         self.has_lights = self.n_lights > 0
         self.occluders = self._possible_occluders()
         self._build_tables()
+        # the media the `volpath` integrator renders (None: none, or another integrator, which ignores them)
+        self.media = MediaKernel(scene, self) if scene.media and scene.volumetric else None
+        # whether some surface lets shadow rays through (a null lobe): volpath then tracks them across it
+        self.materials_pass_light = any(
+            b.kind in PASSING or b.opacity < 1 or (b.blend is not None and b.blend[1].kind in PASSING)
+            for b in scene.bsdfs)
 
     # ---- host-side tables, gathered by primitive index -------------------------------------------
     def _build_tables(self) -> None:
@@ -349,6 +357,8 @@ class SceneGeometry:
         points = f", {len(self.points)} point light(s)" if self.points else ""
         points += f", {len(self.directionals)} directional light(s)" if self.directionals else ""
         lines.append(f"light sampling: {len(self.emitters)} area light(s){points}{env}")
+        if self.media is not None:
+            lines.append(self.media.describe())
         if self.bounce_by_bounce:
             lines.append("path tracing: bounce by bounce, each bounce's rays walked through the BVH by persistent "
                          "lanes")

@@ -47,6 +47,8 @@ if PRECISION not in ("single", "double"):
 Float, Array2f, Array3f, ArrayXf = (
     (_backend.Float64, _backend.Array2f64, _backend.Array3f64, _backend.ArrayXf64) if PRECISION == "double"
     else (_backend.Float, _backend.Array2f, _backend.Array3f, _backend.ArrayXf))
+Texture3f, TensorXf = ((_backend.Texture3f64, _backend.TensorXf64) if PRECISION == "double"
+                      else (_backend.Texture3f, _backend.TensorXf))
 HOST_FLOAT = np.float64 if PRECISION == "double" else np.float32   # Float's NumPy type (tables built in it)
 
 INF = float("inf")

@@ -18,7 +18,7 @@ from xml.parsers import expat
 
 import numpy as np
 
-from . import spectra, transform
+from . import media, spectra, transform
 from .errors import clip, shorten
 from .film import ReconstructionFilter
 from .lights import PLUGINS as LIGHT_PLUGINS
@@ -32,7 +32,7 @@ from .shapes.mesh import MeshFile, load as load_meshes
 from .spectra import rgb
 
 SUPPORTED = {
-    "integrator": ("path", "moment"),
+    "integrator": ("path", "moment", "volpath"),
     "sensor": ("perspective",),
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian", "tent"),
@@ -41,6 +41,9 @@ SUPPORTED = {
     "bsdf": tuple(BSDF_PLUGINS),
     "emitter": ("area", *LIGHT_PLUGINS),
     "texture": tuple(textures.PLUGINS),
+    "medium": media.KINDS,
+    "phase": tuple(media.phases.PLUGINS),
+    "volume": tuple(media.volumes.PLUGINS),
 }
 PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf", "emitter", "texture",
                "medium", "phase", "volume", "spectrum")
@@ -73,6 +76,11 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("integrator", "path"): ("max_depth", "rr_depth", "hide_emitters", "block_size", "samples_per_pass",
                              "timeout"),
     ("integrator", "moment"): ("hide_emitters", "block_size", "samples_per_pass", "timeout"),
+    ("integrator", "volpath"): ("max_depth", "rr_depth", "hide_emitters", "block_size", "samples_per_pass",
+                                "timeout"),
+    **{("medium", name): media.PARAMETERS for name in media.KINDS},
+    **{("phase", name): params for name, params in media.phases.PLUGINS.items()},
+    **{("volume", name): params for name, params in media.volumes.PLUGINS.items()},
     ("sensor", "perspective"): ("to_world", "fov", "fov_axis", "focal_length", "near_clip", "far_clip",
                                 "focus_distance", "principal_point_offset_x", "principal_point_offset_y",
                                 "shutter_open", "shutter_close", "srf"),
@@ -118,6 +126,8 @@ class _Context:
         self.built: dict[int, object] = {}
         self.includes = 0
         self.emitter_shapes: dict[int, Node] = {}     # an area emitter's node -> the shape it is attached to
+        self.shape_media: dict[int, tuple] = {}       # a shape's index in Scene.shapes -> (interior, exterior)
+        self.sensor_medium = None                     # the medium the camera sits in
 
     def error(self, node: Node | None, message: str) -> SceneError:
         if node is None:
@@ -635,7 +645,8 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
             sensors.append(node)
         elif node.tag == "shape":
             shapes.append(node)
-        elif node.tag in ("bsdf", "film", "rfilter", "sampler", "texture", "spectrum") and "id" in node.attrib:
+        elif node.tag in ("bsdf", "film", "rfilter", "sampler", "texture", "spectrum", "medium", "phase",
+                          "volume") and "id" in node.attrib:
             ctx.attempt(_declared, ctx, node)        # used through <ref>; built (and checked) on their own
         elif node.tag == "emitter" and "id" in node.attrib and _emitter_type(node) == "area":
             ctx.attempt(_declared, ctx, node)        # an area light declared for a shape's <ref>
@@ -678,7 +689,28 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
     for node in shapes:
         ctx.attempt(_add_shape, ctx, scene, node)
     _read_meshes(ctx, scene)
+    _place_media(ctx, scene)
     return scene
+
+
+def _place_media(ctx: _Context, scene: Scene) -> None:
+    """Scene.media (those of shapes and the sensor, in order of first use) and each shape's and the
+    sensor's medium code (0: none, k: Scene.media[k - 1])."""
+    codes: dict[int, int] = {}
+
+    def code(medium) -> int:
+        if medium is None:
+            return media.VACUUM
+        if id(medium) not in codes:
+            scene.media.append(medium)
+            codes[id(medium)] = len(scene.media)
+        return codes[id(medium)]
+
+    scene.camera_medium = code(ctx.sensor_medium)
+    if ctx.errors:          # shapes may be missing: their indices no longer match
+        return
+    for index, (inside, outside) in ctx.shape_media.items():
+        scene.shape_media[scene.shapes[index]] = (code(inside), code(outside))
 
 
 def _read_meshes(ctx: _Context, scene: Scene) -> None:
@@ -703,7 +735,7 @@ def _emitter_type(node: Node) -> str:
 
 def _declared(ctx: _Context, node: Node) -> None:
     build = {"bsdf": _bsdf, "film": _film, "rfilter": _rfilter, "sampler": _sampler, "emitter": _area_light,
-             "texture": _texture}
+             "texture": _texture, "medium": _medium, "phase": _plugin_props, "volume": _plugin_props}
     if node.tag not in build:
         _check_type(ctx, node)
         raise ctx.error(node, f"<{node.tag}> is unsupported")
@@ -750,6 +782,7 @@ def _camera(ctx: _Context, node: Node) -> tuple[Camera, dict]:
     props = _Props(ctx, node, kind)
     films = props.children("film")
     samplers = props.children("sampler")
+    ctx.sensor_medium = _media(ctx, props, ("medium",)).get("medium")
     for what, objects in (("film", films), ("sampler", samplers)):
         if len(objects) > 1:
             raise ctx.error(objects[1], f"a second {what} in a sensor (Mitsuba allows one)")
@@ -892,4 +925,37 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
     props.ignore("silhouette_sampling_weight")   # differentiable rendering
     name = node.attrib.get("id", f"{kind}@{node.line}")
     module = SHAPE_PLUGINS[kind]
+    held = _media(ctx, props, ("interior", "exterior"))
     scene.shapes.append(module.from_xml(ctx, props, ShapeArgs(node, kind, to_world, flip, bsdf, radiance, name)))
+    if held:
+        ctx.shape_media[len(scene.shapes) - 1] = (held.get("interior"), held.get("exterior"))
+
+
+def _medium(ctx: _Context, node: Node):
+    props = _Props(ctx, node, _check_type(ctx, node))
+    return media.medium_from_xml(ctx, props, node, lambda n: _Props(ctx, n, _check_type(ctx, n)))
+
+
+def _plugin_props(ctx: _Context, node: Node):
+    """A phase function or volume declared with an id: built (and checked) where a medium uses it."""
+    kind = _check_type(ctx, node)
+    if node.tag == "phase":
+        return media.phases.from_xml(ctx, _Props(ctx, node, kind), node)
+    return media.volume_from_xml(ctx, _Props(ctx, node, kind), node)
+
+
+def _media(ctx: _Context, props: _Props, names: tuple[str, ...]) -> dict:
+    """The media a shape (`interior`, `exterior`) or a sensor (`medium`) holds, by name, each built once."""
+    out = {}
+    for o in props.objects:
+        target = _resolve_ref(ctx, o) if o.tag == "ref" else o
+        if target.tag != "medium":
+            continue
+        props.taken.add(id(o))
+        name = o.attrib.get("name", "")
+        if name not in names:
+            raise ctx.error(o, f"a <medium> named '{name}' in a <{props.node.tag}>; supported names: {', '.join(names)}")
+        if name in out:
+            raise ctx.error(o, f"a second '{name}' medium in one <{props.node.tag}>")
+        out[name] = ctx.built_once(target, lambda n: _medium(ctx, n))
+    return out

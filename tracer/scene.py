@@ -62,6 +62,14 @@ class Scene:
     integrator: str = "path"                      # the scene's integrator, e.g. "moment around path"
     lights: list = field(default_factory=list)    # of the kinds in tracer.lights (area lights: emitting shapes)
     path: Path | None = None
+    media: list = field(default_factory=list)        # of tracer.media.Medium, in the order of their codes 1, 2, ...
+    shape_media: dict = field(default_factory=dict)  # a shape -> its (interior, exterior) medium codes (0: none)
+    camera_medium: int = 0                           # the code of the medium the camera sits in
+
+    @property
+    def volumetric(self) -> bool:
+        """Whether the scene's integrator is `volpath`, which renders its media."""
+        return self.integrator.endswith("volpath")
 
     def of_kind(self, kind: type) -> list:
         return [s for s in self.shapes if isinstance(s, kind)]
@@ -112,6 +120,9 @@ class Scene:
     def estimator_refusals(self, estimator: str) -> list[str]:
         """What the named estimator cannot render correctly in this scene, one line each (empty: nothing)."""
         out = []
+        if estimator == "report" and self.volumetric and self.media:
+            out.append(f"{self.path}: the report estimator does not render participating media "
+                       f"({', '.join(sorted({m.kind for m in self.media}))}); use --estimator path")
         if estimator == "report" and (self.environment is not None or self.envmap is not None):
             plugin = "constant" if self.environment is not None else "envmap"
             out.append(f"{self.path}: the report estimator does not render the '{plugin}' emitter (an environment); "

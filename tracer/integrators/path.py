@@ -46,26 +46,31 @@ def path_radiance(geo: SceneGeometry, o: Array3f, d: Array3f, t_min: Float, t_ma
     bounce by bounce (_wavefront, where SceneGeometry.bounce_by_bounce), else in one kernel
     (_megakernel); each lane's path is the same."""
     path = PathState(o, d, t_min, t_max, Bool(max_depth > 0))
+    return trace_paths(geo, rng, path, _bounce, max_depth, rr_depth)
+
+
+def trace_paths(geo: SceneGeometry, rng: PCG32, path, bounce, *args) -> tuple[Array3f, UInt32]:
+    """Runs bounce(geo, rng, path, *args) until no lane of `path` (a Dr.Jit struct with `L`, `rays` and
+    `active`) is active; returns its L and rays. With a BVH the paths go bounce by bounce (_wavefront, where
+    SceneGeometry.bounce_by_bounce), else in one kernel (_megakernel); each lane's path is the same."""
     trace = _wavefront if geo.bounce_by_bounce else _megakernel
-    return trace(geo, rng, path, max_depth, rr_depth)
+    return trace(geo, rng, path, bounce, *args)
 
 
 @dr.syntax
-def _megakernel(geo: SceneGeometry, rng: PCG32, path: PathState, max_depth: UInt32,
-                rr_depth: UInt32) -> tuple[Array3f, UInt32]:
+def _megakernel(geo: SceneGeometry, rng: PCG32, path, bounce, *args) -> tuple[Array3f, UInt32]:
     """Every path to its end in the caller's kernel, its vertices in a symbolic loop."""
     while path.active:
-        _bounce(geo, rng, path, max_depth, rr_depth)
+        bounce(geo, rng, path, *args)
     return path.L, path.rays
 
 
-def _wavefront(geo: SceneGeometry, rng: PCG32, path: PathState, max_depth: UInt32,
-               rr_depth: UInt32) -> tuple[Array3f, UInt32]:
+def _wavefront(geo: SceneGeometry, rng: PCG32, path, bounce, *args) -> tuple[Array3f, UInt32]:
     """The paths one bounce per step, the state of those still going evaluated between steps, and their
     ray queries batched (SceneGeometry.batched): a packet of lanes then never waits in a BVH walk for
     its slowest ray (wherever a path ends its L and rays go out)."""
     n = dr.width(path.o)
-    for name in PathState.DRJIT_STRUCT:        # one value per lane, to gather from
+    for name in type(path).DRJIT_STRUCT:       # one value per lane, to gather from
         value = getattr(path, name)
         setattr(path, name, value if dr.width(value) == n else dr.tile(value, n))
     L, rays, lane = dr.zeros(Array3f, n), dr.zeros(UInt32, n), dr.arange(UInt32, n)
@@ -76,7 +81,7 @@ def _wavefront(geo: SceneGeometry, rng: PCG32, path: PathState, max_depth: UInt3
                 return L, rays
             if dr.width(going) < dr.width(lane):
                 path, rng, lane = (dr.gather(type(x), x, going) for x in (path, rng, lane))
-            _bounce(geo, rng, path, max_depth, rr_depth)
+            bounce(geo, rng, path, *args)
             ended = ~path.active
             dr.scatter(L, path.L, lane, ended)
             dr.scatter(rays, path.rays, lane, ended)

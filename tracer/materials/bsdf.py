@@ -27,6 +27,10 @@ normal, wi and wo both point away from the surface, cos_theta(w) = w.z. The modu
                                               branching estimator then follows each lobe (the report's glass,
                                               eq. 7-8, 12) instead of one sampled lobe
     albedo(p) -> Array3f                      optional: the reflectance shown in the albedo AOV
+    null_transmission(p, wi, active) -> Array3f
+                                              optional, for kinds with a NULL lobe: the fraction of light
+                                              that passes straight through (Mitsuba's eval_null_transmission;
+                                              `volpath`'s shadow rays carry it across the surface; 0 without)
 
 BSDFSample (materials.flags) holds wo, pdf, eta and sampled_type. Its pdf for a delta lobe is the
 probability of choosing that lobe (Mitsuba's convention); sampled_type says which lobe was taken (a path's

@@ -77,6 +77,14 @@ class _Kinds:
                 wo, weight = dr.select(chosen, d, wo), dr.select(chosen, w, weight)
         return wo, weight
 
+    def null_transmission(self, active: Bool) -> Array3f:
+        out = Array3f(0.0)
+        for code, module in self.kinds:
+            if hasattr(module, "null_transmission"):
+                mask = active & (self.kind == code)
+                out = dr.select(mask, module.null_transmission(self.params[code], self.wi, mask), out)
+        return out
+
     def albedo(self, active: Bool) -> Array3f:
         out = Array3f(0.0)
         for code, module in self.kinds:
@@ -244,6 +252,16 @@ class SurfaceBSDF:
         """Lobe `slot` of each lane's split kind: world direction and weight f |cos| (delta lobes)."""
         wo, weight = self.parts[0].split(slot, active)
         return self.to_world(wo), weight
+
+    def null_transmission(self, active: Bool) -> Array3f:
+        """The fraction of light passing straight through the surface (Mitsuba's eval_null_transmission): a
+        blend's mixture, a mask's 1 - opacity plus opacity times its BSDF's."""
+        value = self.parts[0].null_transmission(active)
+        if self.blend is not None:
+            value = dr.lerp(value, self.parts[1].null_transmission(active), self.blend)
+        if self.opacity is not None:
+            value = dr.select(active, (1.0 - self.opacity) + self.opacity * value, Array3f(0.0))
+        return value
 
     def albedo(self, active: Bool) -> Array3f:
         """The reflectance the albedo AOV shows (kinds that give one; 0 elsewhere)."""

@@ -30,3 +30,8 @@ def eval(p, wi: Array3f, wo: Array3f, active: Bool) -> Array3f:
 
 def pdf(p, wi: Array3f, wo: Array3f, active: Bool) -> Float:
     return Float(0.0)
+
+
+def null_transmission(p, wi: Array3f, active: Bool) -> Array3f:
+    """The fraction of light that passes straight through: all of it."""
+    return zero_unless(active, Array3f(1.0))

@@ -68,6 +68,13 @@ def split(p, wi: Array3f, active: Bool) -> list[tuple[Array3f, Array3f]]:
     return [(reflect_local(wi), spec * r), (-wi, trans * (1.0 - r))]
 
 
+def null_transmission(p, wi: Array3f, active: Bool) -> Array3f:
+    """The fraction of light that passes straight through, 1 - R, times the specular transmittance (Mitsuba's
+    eval_null_transmission: a shadow ray of `volpath` passes the slab with this weight)."""
+    eta, spec, trans = p
+    return zero_unless(active, trans * (1.0 - _reflectance(eta, wi)))
+
+
 def eval(p, wi: Array3f, wo: Array3f, active: Bool) -> Array3f:
     return Array3f(0.0)
 

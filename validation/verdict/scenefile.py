@@ -21,6 +21,7 @@ from tracer.errors import UserError
 SET_ANYWHERE = ("width", "height", "max_depth", "spp")   # -D names a check applies to any scene
 MITSUBA_FILM = (768, 576)      # hdrfilm's default size
 MITSUBA_MAX_DEPTH = -1         # the path integrator's default
+COMPARED_INTEGRATORS = ("path", "volpath")   # both renderers render the scene with the same integrator
 
 
 class ScenePlanError(UserError, ValueError):
@@ -47,9 +48,9 @@ class ScenePlan:
             outer = root.find("integrator")
             root[list(root).index(outer)] = integrator
         kind = _substitute(integrator.get("type", ""), self.params)
-        if kind != "path":
+        if kind not in COMPARED_INTEGRATORS:
             raise ScenePlanError(f"{self.path}: <integrator type=\"{kind}\">: the comparison uses Mitsuba's "
-                                 "path integrator (or a moment integrator wrapping it)")
+                                 "path or volpath integrator (or a moment integrator wrapping one)")
         _set(integrator, "integer", "max_depth", str(self.max_depth))
         return ET.tostring(root, encoding="unicode")
 
