@@ -167,3 +167,6 @@ def test_the_branching_estimator_refuses_media(tmp_path):
     scene = tracer.load_scene(write_scene(tmp_path, body))
     with pytest.raises(tracer.SceneError, match="does not render participating media"):
         render(scene, "report", spp=1)
+    scene = tracer.load_scene(write_scene(tmp_path, '<integrator type="volpath"/><shape type="sphere"/>'))
+    with pytest.raises(tracer.SceneError, match="does not render the volpath integrator"):
+        render(scene, "report", spp=1, max_depth=3)

@@ -379,8 +379,9 @@ def _info(args) -> int:
           f"{cam.rfilter.describe()} filter")
     print(f"  sampler: {scene.spp} spp, seed {scene.seed}; integrator: {scene.integrator}, "
           f"max_depth {scene.max_depth}, rr_depth {scene.rr_depth}")
-    if scene.integrator != "path":
-        print("  (renders the nested path integrator's image; a moment's second-moment images are not written)")
+    if scene.integrator.startswith("moment"):
+        nested = scene.integrator.split()[-1]
+        print(f"  (renders the nested {nested} integrator's image; a moment's second-moment images are not written)")
     print(f"  ({DEPTH_NOTE})")
     print(f"  shapes: {len(scene.rectangles)} rectangles, {len(scene.meshes)} meshes "
           f"({scene.triangle_count} triangles), {len(scene.spheres)} spheres")

@@ -120,9 +120,10 @@ class Scene:
     def estimator_refusals(self, estimator: str) -> list[str]:
         """What the named estimator cannot render correctly in this scene, one line each (empty: nothing)."""
         out = []
-        if estimator == "report" and self.volumetric and self.media:
-            out.append(f"{self.path}: the report estimator does not render participating media "
-                       f"({', '.join(sorted({m.kind for m in self.media}))}); use --estimator path")
+        if estimator == "report" and self.volumetric:
+            what = (f"participating media ({', '.join(sorted({m.kind for m in self.media}))})" if self.media else
+                    "the volpath integrator (whose shadow rays cross null surfaces)")
+            out.append(f"{self.path}: the report estimator does not render {what}; use --estimator path")
         if estimator == "report" and (self.environment is not None or self.envmap is not None):
             plugin = "constant" if self.environment is not None else "envmap"
             out.append(f"{self.path}: the report estimator does not render the '{plugin}' emitter (an environment); "

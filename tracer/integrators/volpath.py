@@ -237,68 +237,69 @@ def transmittance(geo, rng, p: Array3f, skip: UInt32, medium: UInt32, ld, channe
 @dr.syntax
 def _ratio_tracking(geo, rng, o: Array3f, skip: UInt32, medium: UInt32, ld, channel: UInt32,
                     active: Bool) -> tuple[Array3f, UInt32]:
-    collide = _shadow_collision if geo.media is not None else _no_collision
+    """The shadow ray surface by surface: the transmittance of the media between (_segment), times each
+    surface's null transmission (0 for an opaque one); the ray stops SHADOW_EPSILON short of the light."""
+    segment = _segment if geo.media is not None else _vacuum
     d = Array3f(ld.w)
     max_dist = ld.dist * (1.0 - SHADOW_EPSILON)
     tr, total, rays = Array3f(1.0), Float(0.0), UInt32(0)
-    needs = Bool(True)
-    hit_t, hit_prim, hit_b1, hit_b2, hit_p = Float(INF), UInt32(NO_PRIM), Float(0.0), Float(0.0), Array3f(0.0)
     o, skip, medium, active = Array3f(o), UInt32(skip), UInt32(medium), Bool(active)
     while active:
         remaining = max_dist - total
         active &= remaining > 0
-        need = active & needs
-        hit = geo.closest_hit(o, d, 0.0, dr.select(need, remaining, 0.0), skip)
-        rays += dr.select(need, 1, 0)
-        hit_t = dr.select(need, dr.select(hit.valid, hit.t, INF), hit_t)
-        hit_prim = dr.select(need, hit.prim, hit_prim)
-        hit_b1, hit_b2 = dr.select(need, hit.b1, hit_b1), dr.select(need, hit.b2, hit_b2)
-        hit_p = dr.select(need, hit.p, hit_p)
-        needs &= ~need
-        tr, total, o, hit_t, collided, surface = collide(geo.media, rng, o, d, remaining, max_dist, hit_t, medium,
-                                                         channel, active, tr, total)
-        total = dr.select(surface, total + hit_t, total)
-        surface &= hit_prim != NO_PRIM
-        surf = geo.surface(Hit(hit_t, hit_prim, hit_b1, hit_b2, hit_p))
+        hit = geo.closest_hit(o, d, 0.0, dr.select(active, remaining, 0.0), skip)
+        rays += dr.select(active, 1, 0)
+        hit_t = dr.select(hit.valid, hit.t, INF)
+        tr, moved, passed, surface = segment(geo.media, rng, o, d, remaining, hit_t, medium, channel, active, tr)
+        total = dr.select(passed, max_dist, dr.select(surface, total + hit_t, total + moved))
+        hit = Hit(hit_t - moved, hit.prim, hit.b1, hit.b2, hit.p)
+        surface &= hit.valid
+        surf = geo.surface(hit)
         bsdf = SurfaceBSDF(geo.materials, surf, -d, surface)
         tr = dr.select(surface, tr * bsdf.null_transmission(surface), tr)
         o, skip = dr.select(surface, surf.p, o), dr.select(surface, surf.prim, skip)
-        needs |= surface
-        active &= (collided | surface) & (dr.max(tr) > 0)
+        active &= surface & (dr.max(tr) > 0)
         medium = _crossed(geo.media, surf, d, medium, surface)
     return tr, rays
 
 
-def _no_collision(media, rng, o, d, remaining, max_dist, hit_t, medium, channel, active, tr, total):
-    return tr, total, o, hit_t, Bool(False), active
+@dr.syntax
+def _segment(media, rng, o: Array3f, d: Array3f, remaining: Float, hit_t: Float, medium: UInt32, channel: UInt32,
+             active: Bool, tr: Array3f) -> tuple[Array3f, Float, Bool, Bool]:
+    """Ratio tracking (Novak et al. 2014) along a shadow ray in its medium up to its surface hit at hit_t or the
+    light at `remaining`, as volpath.cpp's sample_emitter steps it: collisions sampled with the channel's
+    majorant, the transmittance weighted by the channels' transmittance over the sampling density and by
+    sigma_n (over the majorant, where the extinction is not spectral) at each collision, all of which are null
+    ones to a shadow ray (in a homogeneous medium sigma_n is 0: the ray gets through only where the sampled
+    distance passes the surface or the light). Returns (tr, the distance moved, passed the light, reached the
+    surface: lanes in no medium included)."""
+    moved, passed, going = Float(0.0), Bool(False), active & (medium != VACUUM)
+    spectral = media.spectral(medium)
+    surface = active & ~going
+    while going:
+        left = remaining - moved
+        mi = media.sample_interaction(medium, o, d, left, rng.next_float32(), channel, going)
+        mi.t = dr.select(hit_t - moved < mi.t, INF, mi.t)
+        t = dr.minimum(left, dr.minimum(mi.t, hit_t - moved)) - mi.mint
+        tr_seg = dr.exp(-t * mi.combined)
+        pdf = dr.select((hit_t - moved < mi.t) | (mi.t > left), tr_seg, tr_seg * mi.combined)
+        tr_pdf = channel_value(pdf, channel)
+        tr = dr.select(going & spectral, tr * dr.select(tr_pdf > 0, tr_seg / tr_pdf, 0.0), tr)
+        beyond = going & (mi.t > left)
+        passed |= beyond & dr.isfinite(mi.t)
+        mi.t = dr.select(beyond, INF, mi.t)
+        collided = going & dr.isfinite(mi.t)
+        surface |= going & ~collided & ~passed
+        moved = dr.select(collided, moved + mi.t, moved)
+        o = dr.select(collided, mi.p, o)
+        tr = dr.select(collided, dr.select(spectral, tr * mi.sigma_n, tr * mi.sigma_n / mi.combined), tr)
+        going = collided & (dr.max(tr) > 0)
+    return tr, moved, passed, surface
 
 
-def _shadow_collision(media, rng, o, d, remaining, max_dist, hit_t, medium, channel, active, tr, total):
-    """A shadow ray's step in its medium (ratio tracking; volpath.cpp's sample_emitter): the transmittance
-    times the ratio of the channels' transmittance to the sampling density, times sigma_n / majorant at a
-    null collision (0 in a homogeneous medium, whose collisions are all real: there the ray gets through
-    only where the sampled distance passes the light). Returns (tr, total, o, hit_t, collided, on to the
-    surface)."""
-    in_medium = active & (medium != VACUUM)
-    mi = media.sample_interaction(medium, o, d, remaining, rng.next_float32(), channel, in_medium)
-    mi.t = dr.select(in_medium & (hit_t < mi.t), INF, mi.t)
-    spectral = in_medium & media.spectral(medium)
-    t = dr.minimum(remaining, dr.minimum(mi.t, hit_t)) - mi.mint
-    tr_seg = dr.exp(-t * mi.combined)
-    pdf = dr.select((hit_t < mi.t) | (mi.t > remaining), tr_seg, tr_seg * mi.combined)
-    tr_pdf = channel_value(pdf, channel)
-    tr = dr.select(spectral, tr * dr.select(tr_pdf > 0, tr_seg / tr_pdf, 0.0), tr)
-    beyond = in_medium & (mi.t > remaining)
-    total = dr.select(beyond & dr.isfinite(mi.t), max_dist, total)
-    mi.t = dr.select(beyond, INF, mi.t)
-    escaped = in_medium & ~dr.isfinite(mi.t)
-    collided = in_medium & dr.isfinite(mi.t)
-    total = dr.select(collided, total + mi.t, total)
-    o = dr.select(collided, mi.p, o)
-    hit_t = dr.select(collided, hit_t - mi.t, hit_t)
-    tr = dr.select(collided & spectral, tr * mi.sigma_n, tr)
-    tr = dr.select(collided & ~spectral, tr * mi.sigma_n / mi.combined, tr)
-    return tr, total, o, hit_t, collided, (active & (medium == VACUUM)) | escaped
+def _vacuum(media, rng, o, d, remaining, hit_t, medium, channel, active, tr):
+    """_segment in a scene without media: straight to the surface."""
+    return tr, Float(0.0), Bool(False), Bool(active)
 
 
 def _crossed(media, surf, d, medium, crossing):

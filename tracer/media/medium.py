@@ -6,7 +6,7 @@ A medium is sampled as Mitsuba's Medium::sample_interaction samples it: a tentat
 t = -ln(1 - u) / m along the ray, m the majorant of the path's chosen colour channel: sigma_t itself in a
 homogeneous medium (free-flight sampling: every collision is real), the largest value of scale * sigma_t
 over the volume (the same for all channels) in a heterogeneous one (delta tracking: a collision is real with
-probability sigma_t / m, null otherwise; Woodcock et al. 1965, Novak et al. 2018 eq. 14). The coefficients
+probability sigma_t / m, null otherwise; Woodcock et al. 1965; Novak et al. 2018, sec. 3). The coefficients
 at the collision are sigma_s = albedo * sigma_t, sigma_n = m - sigma_t."""
 from __future__ import annotations
 

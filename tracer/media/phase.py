@@ -4,7 +4,7 @@ scattering event (Mitsuba's wi is -d) and wo the direction after it; g > 0 scatt
 
     p(cos theta) = (1 - g^2) / (4 pi (1 + g^2 - 2 g cos theta)^(3/2)),   cos theta = d . wo
 
-(Henyey and Greenstein 1941; pbrt-v4 eq. 11.12). Both are sampled exactly: the weight p / pdf is 1."""
+(Henyey and Greenstein 1941; pbrt-v4 sec. 11.3.1). Both are sampled exactly: the weight p / pdf is 1."""
 from __future__ import annotations
 
 from dataclasses import dataclass

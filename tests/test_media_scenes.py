@@ -1,0 +1,32 @@
+"""volpath against Mitsuba 3 on the media scenes of mitsuba-renderer/mitsuba-data (its render tests'
+participating_media folder and the docs' homogeneous scenes), each at two depths: 2 (single scattering and
+direct light) and 6 (multiple scattering). Each comparison is `validate check`'s (Welch's t-test per 4 x 4
+block and channel against Mitsuba's passes, family-wise false-positive rate validation.protocol.ALPHA),
+at 16 pixels on the longer side. Needs a local copy of mitsuba-data named by the environment variable
+MITSUBA_DATA and Mitsuba itself: skipped without them (CI has neither)."""
+import os
+from pathlib import Path
+
+import pytest
+
+from validation.check import Settings, check
+from validation.renderers import TracerRenderer
+
+DATA = Path(os.environ["MITSUBA_DATA"]) if os.environ.get("MITSUBA_DATA") else None
+SCENES = ["tests/scenes/participating_media/" + name for name in (
+    "test_homo_null_envmap_volpath.xml", "test_homo_area_light_volpath.xml", "test_homo_dielectric_envmap_volpath.xml",
+    "test_homo_emitter_inside_medium_volpath.xml", "test_homo_obj_inside_medium_volpath.xml",
+    "test_homo_roughdielectric_spot_volpath.xml", "test_hetero_sigmat_volpath.xml",
+    "test_hetero_sigmat_albedo_volpath.xml", "test_hetero_spectral_sigmat_no_scattering_volpath.xml",
+    "test_surf_area_light_volpath.xml")] + ["docs/scenes/medium_homogeneous_sss.xml",
+                                            "docs/scenes/medium_homogeneous_sss_textured.xml"]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(DATA is None, reason="MITSUBA_DATA (a copy of mitsuba-renderer/mitsuba-data) is not set")
+@pytest.mark.parametrize("depth", [2, 6])
+@pytest.mark.parametrize("name", SCENES, ids=[Path(s).stem for s in SCENES])
+def test_agrees_with_mitsuba(name, depth):
+    pytest.importorskip("mitsuba")
+    result = check(DATA / name, TracerRenderer("path"), max_depth=depth, settings=Settings(size=16, spp=32))
+    assert result.verdict == "agree", result.line()
