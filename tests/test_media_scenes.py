@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from validation.check import Settings, check
-from validation.renderers import TracerRenderer
+from validation.verdict.check import Settings, check
+from validation.verdict.renderers import TracerRenderer
 
 DATA = Path(os.environ["MITSUBA_DATA"]) if os.environ.get("MITSUBA_DATA") else None
 SCENES = ["tests/scenes/participating_media/" + name for name in (

@@ -78,7 +78,8 @@ def write(scene_plan, folder: Path) -> Path:
                        "near_clip": cam.near_clip, "far_clip": cam.far_clip},
             "film": {"width": scene_plan.width, "height": scene_plan.height,
                      "filter": _filter(cam.rfilter)},
-            "integrator": {"type": "path", "max_depth": scene_plan.max_depth, "rr_depth": scene.rr_depth},
+            "integrator": {"type": "volpath" if scene.volumetric else "path", "max_depth": scene_plan.max_depth,
+                           "rr_depth": scene.rr_depth},
             "materials": [writer.value(m) for m in materials], "shapes": shapes, "emitters": emitters}
     path = folder / "scene.json"
     path.write_text(json.dumps(data, indent=1))
