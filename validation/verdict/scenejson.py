@@ -16,7 +16,8 @@ Conventions (Mitsuba's, which the check compares against):
 - integrator: Mitsuba's `path`; max_depth counts path vertices (1: emitters seen directly; -1: unbounded);
 - surfaces and area emitters are one-sided unless the material is `twosided`: an area emitter radiates
   `radiance` (W m^-2 sr^-1, linear RGB) from its front side only;
-- materials carry the loader's fields (tracer.materials.BSDF), textures as EXR files beside the JSON.
+- materials carry the loader's fields (tracer.materials.BSDF) under Mitsuba's names (a conductor's tint is its
+  `specular_reflectance`), textures as EXR files beside the JSON.
 
 Curved shapes are tessellated: a sphere into TESSELLATION x TESSELLATION / 2 quads, a cylinder and a disk
 into TESSELLATION segments, the vertices placed so that the mesh's area equals the shape's (their
@@ -32,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 FORMAT = "validate-scene 1"
+CONDUCTORS = ("conductor", "roughconductor")
 TESSELLATION = 128
 
 
@@ -113,6 +115,8 @@ class _Writer:
             for f in fields(x):
                 if f.name != "kind":
                     out[f.name] = self.image(getattr(x, f.name)) if f.name == "image" else self.value(getattr(x, f.name))
+            if out["type"] in CONDUCTORS:       # the loader keeps a conductor's specular_reflectance in `reflectance`
+                out["specular_reflectance"] = out.pop("reflectance")
             return out
         if isinstance(x, (tuple, list, np.ndarray)):
             return [self.value(v) for v in x]
