@@ -359,6 +359,9 @@ class SceneGeometry:
         lines.append(f"light sampling: {len(self.emitters)} area light(s){points}{env}")
         if self.media is not None:
             lines.append(self.media.describe())
+        elif self.scene.media:
+            lines.append(f"media: {len(self.scene.media)}, not rendered: the {self.scene.integrator.split()[-1]} integrator "
+                         "ignores them, as Mitsuba's does (volpath renders them)")
         if self.bounce_by_bounce:
             lines.append("path tracing: bounce by bounce, each bounce's rays walked through the BVH by persistent "
                          "lanes")

@@ -66,6 +66,9 @@ def volpath_radiance(geo: SceneGeometry, o: Array3f, d: Array3f, t_min: Float, t
 
 
 def _step(geo: SceneGeometry, rng: PCG32, st: VolState, max_depth: UInt32, rr_depth: UInt32) -> None:
+    """One step of each path (volpath.cpp's loop body): Russian roulette, the ray's surface hit where it has
+    none yet, a collision in the lane's medium (_medium_collision), then the surface where the ray reaches it
+    (_surface)."""
     media = geo.media
     active = st.active & (dr.max(st.beta) > 0)
     q = dr.minimum(dr.max(st.beta) * st.eta * st.eta, Q_MAX)

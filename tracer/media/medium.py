@@ -13,7 +13,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import drjit as dr
-import numpy as np
 
 from ..jit import INF, Array3f, Bool, Float
 from .phase import Phase
