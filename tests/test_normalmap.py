@@ -39,7 +39,7 @@ def test_parameters_are_read(tmp_path):
     ('<bsdf type="normalmap">{map}<bsdf type="twosided"><bsdf type="diffuse"/></bsdf></bsdf>',
      "normalmap around twosided, mask, blendbsdf or normalmap is not supported"),
     ('<bsdf type="twosided"><bsdf type="normalmap">{map}<bsdf type="diffuse"/></bsdf></bsdf>',
-     "twosided around normalmap is not supported"),
+     "twosided around normalmap or bumpmap is not supported"),
 ])
 def test_refusals(tmp_path, inner, message):
     src = SCENES / "textures/bumps_normalmap.png"

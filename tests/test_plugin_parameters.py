@@ -107,7 +107,7 @@ EXPECTED = {
              "ext_ior": HONOURED, "nonlinear": HONOURED, "diffuse_reflectance": HONOURED, "opacity": HONOURED,
              "distribution": HONOURED, "alpha": HONOURED, "alpha_u": REFUSED, "alpha_v": REFUSED,
              "sample_visible": HONOURED, "weight": HONOURED, "normalmap": HONOURED,
-             "flip_invalid_normals": HONOURED, "use_shadowing_function": HONOURED},
+             "flip_invalid_normals": HONOURED, "use_shadowing_function": HONOURED, "scale": HONOURED},
     "texture": {"color0": HONOURED, "color1": HONOURED, "to_uv": HONOURED, "filename": HONOURED, "bitmap": REFUSED,
                 "data": REFUSED, "raw": HONOURED, "filter_type": HONOURED, "wrap_mode": HONOURED, "format": REFUSED,
                 "accel": NO_EFFECT, "value": HONOURED},
@@ -166,6 +166,10 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
                  "blendbsdf": '<bsdf type="diffuse"/><bsdf type="conductor"/>'}.get(kind, "")
         if kind == "normalmap" and param != "normalmap":
             inner += VALUES["normalmap"].replace("b.png", "a.png")
+        if kind == "bumpmap":
+            inner = '<bsdf type="diffuse"/>' + VALUES["normalmap"].replace("b.png", "a.png")
+            body = f'<shape type="obj"><string name="filename" value="a.obj"/><bsdf type="{kind}">{inner}{p}</bsdf></shape>'
+            return header, body
         body = f'<shape type="rectangle"><bsdf type="{kind}">{inner}{p}</bsdf></shape>'
     elif tag == "texture":
         if kind == "bitmap":

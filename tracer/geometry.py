@@ -52,6 +52,7 @@ class Surface:
     valid: Bool
     uv: tuple[Float, Float] | None = None   # texture coordinates, in scenes with textures only
     dpdu: Array3f | None = None   # the direction of dp/du, in scenes whose materials are oriented only
+    dpdv: Array3f | None = None   # dp/dv (true length, as dp/du then), in scenes with bump maps only
 
 
 def uses_bvh(scene: Scene) -> bool:
@@ -292,7 +293,10 @@ class SceneGeometry:
             dpdu = Array3f(0.0)
             for shapes in self.shape_sets:
                 dpdu = shapes.tangent(prim, valid, hit.p, hit.b1, hit.b2, dpdu)
-        return Surface(hit.p, n, ns, material, dr.select(valid, hit.prim, NO_PRIM), valid, uv, dpdu)
+        dpdv = None
+        if self.materials.any_bumpmap:
+            dpdv = self.meshes.cotangent(prim, valid, Array3f(0.0))
+        return Surface(hit.p, n, ns, material, dr.select(valid, hit.prim, NO_PRIM), valid, uv, dpdu, dpdv)
 
     # ---- lights -----------------------------------------------------------------------------------
     def emitted(self, surf: Surface, wi: Array3f) -> Array3f:

@@ -22,7 +22,7 @@ from . import media, spectra, transform
 from .errors import clip, shorten
 from .film import ReconstructionFilter
 from .lights import PLUGINS as LIGHT_PLUGINS
-from .materials import BSDF, Bitmap, Checkerboard, textures
+from .materials import BSDF, Bitmap, Checkerboard, bumpmap, textures
 from .materials import PLUGINS as BSDF_PLUGINS
 from .meshes import MeshError
 from .scene import Camera, Scene, SceneError
@@ -182,6 +182,10 @@ class _Context:
     def bsdf(self, node: Node) -> BSDF:
         """The BSDF of a <bsdf> element (nested in another, or given by <ref>), built once."""
         return self.built_once(node, lambda n: _bsdf(self, n))
+
+    def texture(self, node: Node):
+        """The texture of a <texture> element (materials.textures), built once."""
+        return self.built_once(node, lambda n: _texture(self, n))
 
     def built_once(self, node: Node, build):
         """An object declared once and used by several others is built (and refused) once."""
@@ -918,6 +922,9 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
                               f"{first.file}:{first.line} already; an emitter attaches to one shape (as Mitsuba)")
     radiance = ctx.attempt(ctx.built_once, emitters[0], lambda n: _area_light(ctx, n)) if emitters else None
     bsdf = ctx.attempt(ctx.bsdf, bsdfs[0]) if bsdfs else None
+    if bsdf is not None and bsdf.texture_of("bumpmap") is not None and kind not in bumpmap.SHAPES:
+        raise ctx.error(bsdfs[0], f"a bumpmap on a '{kind}' is not supported (the tracer computes dp/dv on "
+                                  f"meshes only); supported shapes: {', '.join(bumpmap.SHAPES)}")
     if bsdf is None:  # Mitsuba's default: diffuse 0.5, but black on an emitter shape
         bsdf = BSDF("diffuse", (0.0,) * 3 if emitters else (0.5,) * 3)
     to_world = props.get("to_world", np.eye(4), ("transform",))

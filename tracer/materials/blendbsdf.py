@@ -19,7 +19,7 @@ def from_xml(ctx, props, node) -> BSDF:
         raise ctx.error(props.values.get("weight", node), f"weight must lie in [0, 1], got {weight}")
     first, second = (ctx.bsdf(b) for b in inner)
     for child, part in zip(inner, (first, second)):
-        if part.blend is not None or part.masked or part.normalmap is not None:
+        if part.blend is not None or part.masked or part.normalmap is not None or part.texture_of("bumpmap"):
             raise ctx.error(child, "blendbsdf blends plain bsdfs (no blendbsdf, mask or normalmap inside; a mask "
                                    "may wrap the blendbsdf)")
     if first.twosided != second.twosided:

@@ -143,6 +143,7 @@ class BSDF:
     normalmap: Texture | None = None  # a `normalmap` around it: the tilted normals (materials.normalmap)
     normalmap_flip: bool = True       # its flip_invalid_normals
     normalmap_shadowing: bool = True  # its use_shadowing_function
+    bump_scale: float = 1.0           # a `bumpmap` around it (its texture: slot 'bumpmap'): the height's scale
     textures: tuple[tuple[str, Texture], ...] = ()   # other parameters given by textures: (slot, texture)
 
     def slot_textures(self) -> list[tuple[str, Texture]]:

@@ -11,7 +11,7 @@ import drjit as dr
 
 from ..jit import Array2f, Array3f, Bool, Float, UInt32
 from ..sampling import coordinate_system
-from . import (conductor, dielectric, diffuse, normalmap, null, plastic, roughconductor, roughdielectric, roughplastic,
+from . import (bumpmap, conductor, dielectric, diffuse, normalmap, null, plastic, roughconductor, roughdielectric, roughplastic,
                thindielectric)
 from .bsdf import DELTA, NULL, SMOOTH, TRANSMISSION, BSDFSample, has_flag
 
@@ -115,7 +115,7 @@ class SurfaceBSDF:
         self.n = self.n0 = surf.ns
         self.s, self.t = shading_tangents(self.n, surf.dpdu)
         self.tilt = None                   # normal-mapped lanes' (tilted normal, has, shadowing) (None: no such)
-        if tables.any_normalmap:
+        if tables.any_normalmap or tables.any_bumpmap:
             self._tilt(tables, surf, self._local(wi), active)
         wi = self._local(wi)
         self.opacity = tables.opacity(surf, active) if tables.any_mask else None   # the mask's own
@@ -142,10 +142,17 @@ class SurfaceBSDF:
     def _tilt(self, tables, surf, wi: Array3f, active: Bool) -> None:
         """Normal-mapped lanes (materials.normalmap): the frame becomes the tilted one, in world space."""
         m, has, flip, shadow = tables.normalmap(surf, active)
+        first = Array3f(1.0, 0.0, 0.0)
+        if tables.any_bumpmap:            # bump-mapped lanes (materials.bumpmap)
+            grad, bumped = tables.bump_gradient(surf, active)
+            nb = bumpmap.bumped_normal(self.n0, surf.n, surf.dpdu, surf.dpdv, grad)
+            m = dr.select(bumped, self._local(nb), m)
+            first = dr.select(bumped, surf.dpdu, first)      # Mitsuba's: world components in the local frame
+            has |= bumped
         mirrored = flip & (wi.z * dr.dot(wi, m) <= 0)
         m = Array3f(dr.select(mirrored, -m.x, m.x), dr.select(mirrored, -m.y, m.y), m.z)
         m = dr.select(has, m, Array3f(0.0, 0.0, 1.0))
-        local = normalmap.tilted_frame(m)
+        local = normalmap.tilted_frame(m, first)
         self.s, self.t, self.n = (self.s * v.x + self.t * v.y + self.n0 * v.z for v in local)
         self.tilt = (local[2], has, shadow)
 

@@ -30,16 +30,19 @@ def from_xml(ctx, props, node) -> BSDF:
     if isinstance(texture, np.ndarray):
         raise ctx.error(node, "normalmap: 'normalmap' must be a <texture> (as in Mitsuba)")
     nested = ctx.bsdf(inner[0])
-    if nested.twosided or nested.masked or nested.normalmap is not None or nested.blend is not None:
+    if (nested.twosided or nested.masked or nested.normalmap is not None or nested.blend is not None
+            or nested.texture_of("bumpmap") is not None):
         raise ctx.error(inner[0], "normalmap around twosided, mask, blendbsdf or normalmap is not supported; "
                                   "supported: normalmap around one BSDF of any other kind")
     return replace(nested, normalmap=texture, normalmap_flip=bool(flip), normalmap_shadowing=bool(shadowing))
 
 
-def tilted_frame(m: Array3f) -> tuple[Array3f, Array3f, Array3f]:
-    """The tilted frame in the unperturbed frame's coordinates, from the (unnormalised) normal m."""
+def tilted_frame(m: Array3f, first: Array3f | None = None) -> tuple[Array3f, Array3f, Array3f]:
+    """The tilted frame in the unperturbed frame's coordinates, from the (unnormalised) normal m: its first
+    tangent `first` (default: the unperturbed x) made orthogonal to it."""
     n = dr.normalize(m)
-    s = dr.normalize(Array3f(1.0, 0.0, 0.0) - n * n.x)
+    first = Array3f(1.0, 0.0, 0.0) if first is None else first
+    s = dr.normalize(first - n * dr.dot(n, first))
     return s, dr.cross(n, s), n
 
 

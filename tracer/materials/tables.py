@@ -6,7 +6,7 @@ from __future__ import annotations
 import drjit as dr
 import numpy as np
 
-from ..jit import Array3f, Bool, Float, UInt32
+from ..jit import Array2f, Array3f, Bool, Float, UInt32
 from .bsdf import BSDF
 from .dispatch import KIND_CODE, KINDS
 from .textures import TextureTables
@@ -27,13 +27,14 @@ class MaterialTables:
         bsdfs = self.bsdfs
         self.kinds = {KIND_CODE[b.kind] for b in bsdfs} if kinds is None else set(kinds)
         self.any_normalmap = any(b.normalmap is not None for b in bsdfs)
+        self.any_bumpmap = any(b.texture_of("bumpmap") is not None for b in bsdfs)
         self._slots, textures = _slots(bsdfs)
         self.textured = bool(self._slots)
         self.any_twosided = any(b.twosided for b in bsdfs)
         # whether a material is not invariant under rotation about the normal (anisotropic roughness, a normal
         # map in tangent space): then the shading frame follows the surface's dp/du as Mitsuba's; elsewhere any
         # frame about the normal gives the same image
-        self.oriented = any(not b.isotropic or b.normalmap is not None for b in bsdfs)
+        self.oriented = any(not b.isotropic or b.normalmap is not None for b in bsdfs) or self.any_bumpmap
         rows = bsdfs or [BSDF("diffuse", (0.0, 0.0, 0.0))]   # an empty scene still gathers (masked off)
         self._reflectance = Float(np.array([b.reflectance for b in rows]).ravel())
         self._kind = UInt32([KIND_CODE[b.kind] for b in rows])
@@ -47,9 +48,10 @@ class MaterialTables:
         self._opacity = Float([b.opacity for b in rows])
         self._back = UInt32([bsdfs.index(b.back) if b.back is not None else i for i, b in enumerate(rows)])
         self.textures = TextureTables(textures) if self.textured else None
-        if self.any_normalmap:
+        if self.any_normalmap or self.any_bumpmap:
             self._normalmap_flags = Float(np.array([[b.normalmap_flip, b.normalmap_shadowing] for b in rows],
                                                    float).ravel())
+            self._bump_scale = Float([b.bump_scale for b in rows])
         self._tables: dict[str, tuple[Float, int]] = {}
         for code in sorted(self.kinds):
             module = KINDS[code]
@@ -90,12 +92,21 @@ class MaterialTables:
     def normalmap(self, surf, active: Bool) -> tuple[Array3f, Bool, Bool, Bool]:
         """A normal map's tilted normal 2 c - 1 at the surface point (0, 0, 1 for materials without one), and
         per lane whether the material has one and its flip_invalid_normals and use_shadowing_function."""
-        index = self.texture_index("normalmap", surf, active)
-        has = index > 0
-        m = dr.select(has, self.textures.eval(index, surf.uv, active & has), Array3f(0.5, 0.5, 1.0)) * 2.0 - 1.0
+        m, has = Array3f(0.0, 0.0, 1.0), Bool(False)
+        if self.any_normalmap:
+            index = self.texture_index("normalmap", surf, active)
+            has = index > 0
+            m = dr.select(has, self.textures.eval(index, surf.uv, active & has), Array3f(0.5, 0.5, 1.0)) * 2.0 - 1.0
         flip = dr.gather(Float, self._normalmap_flags, surf.material * 2, active) > 0
         shadow = dr.gather(Float, self._normalmap_flags, surf.material * 2 + 1, active) > 0
         return m, has, flip, shadow
+
+    def bump_gradient(self, surf, active: Bool) -> tuple[Array2f, Bool]:
+        """A bump map's height gradient (scale included) in (u, v), and per lane whether the material has one."""
+        index = self.texture_index("bumpmap", surf, active)
+        has = index > 0
+        scale = dr.gather(Float, self._bump_scale, surf.material, active)
+        return self.textures.grad_1(index, surf.uv, active & has) * scale, has
 
     def twosided(self, material: UInt32, active: Bool) -> Bool:
         if not self.any_twosided:

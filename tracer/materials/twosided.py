@@ -21,9 +21,9 @@ def from_xml(ctx, props, node) -> BSDF:
         raise ctx.error(node, "twosided wraps one bsdf (or two: front and back)")
     sides = [ctx.bsdf(b) for b in inner]
     for child, side in zip(inner, sides):
-        if side.normalmap is not None:
-            raise ctx.error(child, "twosided around normalmap is not supported; supported: twosided around one "
-                                   "or two BSDFs without normalmap")
+        if side.normalmap is not None or side.texture_of("bumpmap") is not None:
+            raise ctx.error(child, "twosided around normalmap or bumpmap is not supported; supported: twosided "
+                                   "around one or two BSDFs without them")
         if side.twosided:
             raise ctx.error(child, "a twosided bsdf cannot be nested in twosided")
         for kind in [side.kind] + ([side.blend[1].kind] if side.blend is not None else []):

@@ -256,27 +256,37 @@ class MeshSet(ShapeSet):
         edges p1 - p0, p2 - p0 against the uv edges), p1 - p0 where the mesh has none, and the first tangent
         of Mitsuba's coordinate system around the face normal where the uv edges are degenerate; for scenes
         whose materials depend on it."""
-        out = np.zeros((max(self.count, 1), 3))
+        out, out_v = np.zeros((max(self.count, 1), 3)), np.zeros((max(self.count, 1), 3))
         for m, lo, n in self.shape_primitives():
             c = m.vertices[m.faces].astype(np.float64)
             dp0, dp1 = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]
             tri = slice(lo - self.base, lo - self.base + n)
             if m.uvs is None:
-                out[tri] = dp0
+                out[tri], out_v[tri] = dp0, dp1
                 continue
             uv = m.uvs[m.faces].astype(np.float64)
             duv0, duv1 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
             det = duv0[:, 0] * duv1[:, 1] - duv0[:, 1] * duv1[:, 0]
             ok = det != 0
             dpdu = (duv1[:, 1, None] * dp0 - duv0[:, 1, None] * dp1) / np.where(ok, det, 1.0)[:, None]
-            out[tri] = np.where(ok[:, None], dpdu, coordinate_system_rows(self.normals()[tri]))
+            dpdv = (duv0[:, 0, None] * dp1 - duv1[:, 0, None] * dp0) / np.where(ok, det, 1.0)[:, None]
+            s, t = coordinate_system_rows(self.normals()[tri], both=True)
+            out[tri], out_v[tri] = np.where(ok[:, None], dpdu, s), np.where(ok[:, None], dpdv, t)
         self.tangents = Float(out.astype(HOST_FLOAT).ravel())
+        self.cotangents = Float(out_v.astype(HOST_FLOAT).ravel())
 
     def tangent(self, prim, valid, p, b1, b2, dpdu):
         if not self.count:
             return dpdu
         tri, is_tri = self._triangle(prim, valid)
         return dr.select(is_tri, dr.gather(Array3f, self.tangents, tri, is_tri), dpdu)
+
+    def cotangent(self, prim, valid, dpdv):
+        """Mitsuba's dp/dv (true length) where prim is a triangle (`dpdv` elsewhere); built by build_tangents."""
+        if not self.count:
+            return dpdv
+        tri, is_tri = self._triangle(prim, valid)
+        return dr.select(is_tri, dr.gather(Array3f, self.cotangents, tri, is_tri), dpdv)
 
     def frames(self) -> np.ndarray:
         return self._frames_normals[0]
@@ -374,8 +384,11 @@ class MeshSet(ShapeSet):
         return y, n, prim
 
 
-def coordinate_system_rows(n: np.ndarray) -> np.ndarray:
-    """(rows, 3) the first tangent of sampling.coordinate_system (Duff et al. 2017) for unit normals n."""
+def coordinate_system_rows(n: np.ndarray, both: bool = False):
+    """(rows, 3) the first tangent of sampling.coordinate_system (Duff et al. 2017) for unit normals n (and
+    the second, where `both`)."""
     sign = np.where(n[:, 2] >= 0, 1.0, -1.0)
     a = -1.0 / (sign + n[:, 2])
-    return np.stack([1.0 + sign * n[:, 0] * n[:, 0] * a, sign * n[:, 0] * n[:, 1] * a, -sign * n[:, 0]], axis=1)
+    b = n[:, 0] * n[:, 1] * a
+    s = np.stack([1.0 + sign * n[:, 0] * n[:, 0] * a, sign * b, -sign * n[:, 0]], axis=1)
+    return (s, np.stack([b, sign + n[:, 1] * n[:, 1] * a, -n[:, 1]], axis=1)) if both else s
