@@ -50,7 +50,7 @@ def test_parameters_are_read_as_mitsuba_reads_them(tmp_path):
      "nor by Mitsuba"),
     ('<bsdf type="roughdielectric"><float name="int_ior" value="1.2"/><float name="ext_ior" value="1.2"/></bsdf>',
      "must be positive and differ"),
-    ('<bsdf type="roughconductor"><texture type="checkerboard" name="alpha"/></bsdf>',
+    ('<bsdf type="roughplastic"><texture type="checkerboard" name="alpha"/></bsdf>',
      "<texture type=\"checkerboard\"> as 'alpha'"),
 ])
 def test_refusals(tmp_path, inner, message):

@@ -89,3 +89,9 @@ def seeded_rng(index: UInt32, seed: int) -> PCG32:
     v0, v1 = tea(key, index)
     state = UInt64(v0) | (UInt64(v1) << 32)
     return PCG32(dr.width(index), state, UInt64(index))
+
+
+def square_to_cosine_hemisphere_concentric(u1: Float, u2: Float) -> Array3f:
+    """Mitsuba's cosine-weighted warp: the concentric disk lifted to the hemisphere (density cos(theta) / pi)."""
+    x, y = square_to_uniform_disk_concentric(u1, u2)
+    return Array3f(x, y, dr.safe_sqrt(1.0 - x * x - y * y))

@@ -144,6 +144,7 @@ class BSDF:
     normalmap_flip: bool = True       # its flip_invalid_normals
     normalmap_shadowing: bool = True  # its use_shadowing_function
     bump_scale: float = 1.0           # a `bumpmap` around it (its texture: slot 'bumpmap'): the height's scale
+    extra: tuple[tuple[str, float], ...] = ()   # a kind's own scalar parameters by name (principled's)
     textures: tuple[tuple[str, Texture], ...] = ()   # other parameters given by textures: (slot, texture)
 
     def slot_textures(self) -> list[tuple[str, Texture]]:
@@ -172,8 +173,11 @@ class BSDF:
 
     @property
     def isotropic(self) -> bool:
-        """Roughness the same along both tangents (the frame's rotation about the normal does not matter)."""
-        return self.alpha_u == self.alpha_v and self.texture_of("alpha_u") is self.texture_of("alpha_v")
+        """Roughness the same along both tangents (the frame's rotation about the normal does not matter):
+        alpha_u and alpha_v, and a kind's own `anisotropic` parameter (principled's) 0."""
+        anisotropic = dict(self.extra).get("anisotropic", 0.0) != 0 or self.texture_of("anisotropic") is not None
+        return (self.alpha_u == self.alpha_v and self.texture_of("alpha_u") is self.texture_of("alpha_v")
+                and not anisotropic)
 
     @property
     def perfect_mirror(self) -> bool:

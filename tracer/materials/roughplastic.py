@@ -23,7 +23,7 @@ import drjit as dr
 import numpy as np
 
 from ..jit import Array3f, Bool, Float, UInt32
-from ..sampling import square_to_uniform_disk_concentric
+from ..sampling import square_to_cosine_hemisphere_concentric
 from . import microfacet as mf
 from . import plastic
 from .bsdf import BSDF, DIFFUSE_REFLECTION, GLOSSY_REFLECTION, BSDFSample
@@ -140,18 +140,12 @@ def _specular_probability(p: RoughPlasticParams, t_i: Float) -> Float:
     return spec / (spec + t_i * (1.0 - p.specular_weight))
 
 
-def _cosine_hemisphere(u) -> Array3f:
-    """Mitsuba's cosine-weighted warp: the concentric disk lifted to the hemisphere."""
-    x, y = square_to_uniform_disk_concentric(u[0], u[1])
-    return Array3f(x, y, dr.safe_sqrt(1.0 - x * x - y * y))
-
-
 def sample(p: RoughPlasticParams, wi: Array3f, u1: Float, u2, active: Bool) -> tuple[BSDFSample, Array3f]:
     """(sample, weight = f cos theta_o / pdf): the coating with the probability above, else the base."""
     active = active & (wi.z > 0)
     specular = u1 < _specular_probability(p, _transmittance(p, wi.z, active))
     m, _ = p.distr.sample(wi, u2)
-    wo = dr.select(specular, reflect(-wi, m), _cosine_hemisphere(u2))
+    wo = dr.select(specular, reflect(-wi, m), square_to_cosine_hemisphere_concentric(u2[0], u2[1]))
     density = pdf(p, wi, wo, active)
     active &= density > 0
     weight = eval(p, wi, wo, active) / density
