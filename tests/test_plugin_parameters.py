@@ -80,7 +80,8 @@ VALUES = {
     **{name: f'<float name="{name}" value="0.4"/>' for name in (
         "anisotropic", "spec_trans", "sheen", "sheen_tint", "flatness", "spec_tint", "metallic", "clearcoat",
         "clearcoat_gloss", "specular", "main_specular_sampling_rate", "clearcoat_sampling_rate",
-        "diffuse_reflectance_sampling_rate")},
+        "diffuse_reflectance_sampling_rate", "diff_trans", "specular_reflectance_sampling_rate",
+        "specular_transmittance_sampling_rate", "diffuse_transmittance_sampling_rate")},
     "accel": '<boolean name="accel" value="false"/>',
     "albedo": '<rgb name="albedo" value="0.2, 0.3, 0.4"/>', "sigma_t": '<rgb name="sigma_t" value="2, 3, 4"/>',
     "sample_emitters": '<boolean name="sample_emitters" value="false"/>',
@@ -116,7 +117,9 @@ EXPECTED = {
              **{name: HONOURED for name in (
                  "base_color", "roughness", "anisotropic", "spec_trans", "sheen", "sheen_tint", "flatness", "spec_tint",
                  "metallic", "clearcoat", "clearcoat_gloss", "specular", "main_specular_sampling_rate",
-                 "clearcoat_sampling_rate", "diffuse_reflectance_sampling_rate")}},
+                 "clearcoat_sampling_rate", "diffuse_reflectance_sampling_rate", "diff_trans",
+                 "specular_reflectance_sampling_rate", "specular_transmittance_sampling_rate",
+                 "diffuse_transmittance_sampling_rate")}},
     "texture": {"color0": HONOURED, "color1": HONOURED, "to_uv": HONOURED, "filename": HONOURED, "bitmap": REFUSED,
                 "data": REFUSED, "raw": HONOURED, "filter_type": HONOURED, "wrap_mode": HONOURED, "format": REFUSED,
                 "accel": NO_EFFECT, "value": HONOURED},
@@ -143,7 +146,8 @@ SPECIAL = {   # (tag, kind, parameter) whose handling differs from the tag's oth
     ("bsdf", "dielectric", "specular_reflectance"): REFUSED,
     ("bsdf", "thindielectric", "specular_transmittance"): HONOURED,
     ("bsdf", "roughdielectric", "specular_transmittance"): HONOURED,
-    ("bsdf", "principled", "eta"): REFUSED,        # a float in Mitsuba's principled: the test's <rgb> is refused
+    ("bsdf", "principled", "eta"): REFUSED,
+    ("bsdf", "principledthin", "eta"): REFUSED,    # likewise        # a float in Mitsuba's principled: the test's <rgb> is refused
 }
 
 

@@ -148,8 +148,9 @@ SCENE = "principled.xml"
 @pytest.mark.slow
 @pytest.mark.parametrize("estimator, max_depth", [("path", 5), ("report", 4)])
 def test_principled_agrees_with_mitsuba(estimator, max_depth):
-    """mitsuba_scenes/principled.xml by both estimators against Mitsuba (Welch's t-test per 4x4 block and
-    channel, Bonferroni-corrected, family-wise false-positive rate ALPHA per comparison)."""
+    """mitsuba_scenes/principled.xml (principled and principledthin) by both estimators against Mitsuba (Welch's
+    t-test per 4x4 block and channel, Bonferroni-corrected, family-wise false-positive rate ALPHA per
+    comparison)."""
     from validation.protocol import ALPHA
     from validation.stats import compare_passes
 

@@ -167,10 +167,16 @@ def compatible(m: Array3f, wi: Array3f, wo: Array3f, cos_i: Float, reflection: b
 
 
 # ---- the lobes ----------------------------------------------------------------------------------------------
-def _distribution(w: dict):
-    rough2 = dr.square(w["roughness"])
-    aspect = dr.sqrt(1.0 - 0.9 * w["anisotropic"])
+def ggx(anisotropic: Float, roughness: Float):
+    """The GGX distribution of alpha_x = max(0.001, roughness^2 / aspect), alpha_y = max(0.001, roughness^2
+    aspect), aspect = sqrt(1 - 0.9 anisotropic) (Mitsuba's calc_dist_params)."""
+    rough2 = dr.square(roughness)
+    aspect = dr.sqrt(1.0 - 0.9 * anisotropic)
     return microfacet(True, dr.maximum(0.001, rough2 / aspect), dr.maximum(0.001, rough2 * aspect))
+
+
+def _distribution(w: dict):
+    return ggx(w["anisotropic"], w["roughness"])
 
 
 def _probabilities(w: dict, f: Float, front: Bool) -> tuple[Float, Float, Float, Float]:
