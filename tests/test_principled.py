@@ -151,8 +151,8 @@ def test_principled_agrees_with_mitsuba(estimator, max_depth):
     """mitsuba_scenes/principled.xml (principled and principledthin) by both estimators against Mitsuba (Welch's
     t-test per 4x4 block and channel, Bonferroni-corrected, family-wise false-positive rate ALPHA per
     comparison)."""
-    from validation.protocol import ALPHA
-    from validation.stats import compare_passes
+    from validation.verdict.protocol import ALPHA
+    from validation.verdict.stats import compare_passes
 
     from .conftest import PASSES, SIZE, SPP, mitsuba_passes, plugin_passes
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=max_depth)
@@ -164,8 +164,8 @@ def test_principled_agrees_with_mitsuba(estimator, max_depth):
 def test_fails_with_the_anisotropy_turned(monkeypatch):
     """alpha_x and alpha_y exchanged (the anisotropy turned by 90 degrees about the normal)."""
     from tracer.materials.microfacet import microfacet
-    from validation.protocol import ALPHA
-    from validation.stats import compare_passes
+    from validation.verdict.protocol import ALPHA
+    from validation.verdict.stats import compare_passes
 
     from .conftest import PASSES, SIZE, SPP, mitsuba_passes, plugin_passes
     honest = principled._distribution
