@@ -46,11 +46,13 @@ def _parser() -> argparse.ArgumentParser:
                    "the equivalence section's render-test scene (default: --equivalence-repetitions)")
     c.add_argument("--criterion-repetitions", type=int, default=8, help="repetitions of the criterion section "
                    "(default 8)")
+    _suite_options(c)
     v = sub.add_parser("coverage", help="write reports/mitsuba_scenes.md: which of Mitsuba's own scenes (a local "
                        "copy of mitsuba-renderer/mitsuba-data) the tracer renders and agrees on, what blocks the rest")
     v.add_argument("mitsuba_data", type=Path, metavar="MITSUBA_DATA_DIR")
     v.add_argument("--output", "-o", type=Path, default=Path("reports/mitsuba_scenes.md"))
     v.add_argument("--no-check", action="store_true", help="only load the scenes (no renders)")
+    _suite_options(v)
     t = sub.add_parser("mitsuba-tests", help="write reports/mitsuba_tests.md: Mitsuba's own render tests "
                        "(tests/scenes of a local copy of mitsuba-renderer/mitsuba-data) taken by the tracer, and by "
                        "Mitsuba, with Mitsuba's protocol; exit 1 if a test the tracer renders fails",
@@ -126,6 +128,22 @@ def _parser() -> argparse.ArgumentParser:
 
 
 EXIT_UNSUPPORTED = 77    # validation.verdict.renderers.EXIT_UNSUPPORTED (not imported here: the parser loads fast)
+def _suite_options(p) -> None:
+    """--scheduler and --workers: where a suite's units run (validation.suites.runner)."""
+    p.add_argument("--scheduler", default="local", metavar="local|none|tcp://HOST:PORT", help="where the suite's "
+                   "units run: a local Dask cluster (default), this process alone (none, for debugging), or the "
+                   "Dask scheduler at this address (its workers need the project importable, no shared disk)")
+    p.add_argument("--workers", type=int, metavar="N", help="--scheduler local: worker processes of one Dr.Jit "
+                   "thread each (default: one per core, fewer if memory is short)")
+
+
+def _session(args):
+    from .suites.runner import check_scheduler, session
+
+    check_scheduler(args.scheduler, args.workers)       # before anything runs
+    return session(args.scheduler, args.workers)
+
+
 EXIT_NOTE = ("exit status: 0 every check agrees (or is skipped: the renderer does not support the scene), 1 any "
              "disagrees, 3 any is inconclusive (and none disagrees), 2 usage or input error")
 
@@ -399,7 +417,8 @@ def _run(args) -> int:
         if args.only == "criterion" and args.mitsuba_data is None:
             raise ScenePlanError("--only criterion needs --mitsuba-data DIR (a copy of mitsuba-renderer/mitsuba-data)")
         if args.only is None:
-            report(args.output, args.repetitions)
+            with _session(args) as runner:
+                report(args.output, args.repetitions, runner)
         if args.only in (None, "equivalence"):
             calibration_equivalence.update(args.output, args.equivalence_repetitions, args.mitsuba_data,
                                            args.render_test_repetitions)
@@ -415,7 +434,9 @@ def _run(args) -> int:
         if not any((args.mitsuba_data / f).is_dir() for f in FOLDERS):
             raise ScenePlanError(f"'{args.mitsuba_data}' holds none of {', '.join(FOLDERS)}: expected a copy of "
                                  "mitsuba-renderer/mitsuba-data")
-        print(report(args.mitsuba_data, args.output, command_line(args.argv, args.mitsuba_data), not args.no_check))
+        with _session(args) as runner:
+            print(report(args.mitsuba_data, args.output, command_line(args.argv, args.mitsuba_data), not args.no_check,
+                         runner))
         return 0
     if args.command == "mitsuba-tests":
         from .suites.mitsuba_tests import SCENES, report

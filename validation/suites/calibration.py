@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import itertools
 import time
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass
 from collections.abc import Callable
 from pathlib import Path
@@ -28,6 +29,7 @@ from scipy import stats as sps
 from tqdm import tqdm
 
 from ..verdict import protocol
+from .runner import NONE, Runner, Unit, session
 from ..verdict.check import REPORT_REFERENCE_SPP
 from ..verdict.renderers import MitsubaRenderer, TracerRenderer
 from ..reports.scene_report import SWEEP_DEPTH, Config
@@ -101,34 +103,89 @@ def _blocks(renderer, scene_plan, passes: int, spp: int, seed: int) -> np.ndarra
     return block_means(renderer.passes(scene_plan, passes, spp, seed), protocol.BLOCK).astype(np.float32)
 
 
+def _plan(cell: Cell, setting: Setting):
+    return plan({**SCENES, **SWEEP_SCENES}[cell.scene], size=setting.size, max_depth=cell.max_depth)
+
+
+def cell_path(cell: Cell, cache: Path = CACHE, setting: Setting = CHECK) -> Path:
+    """The cell's cache file, named by a key of the scene's content and the cell."""
+    key = _plan(cell, setting).content_key(**asdict(cell), passes=setting.passes, old_ref_spp=OLD_REF_SPP,
+                                           report=dict(zip(REPORT, setting.report)))
+    return cache / f"{cell.name}-{key}.npz"
+
+
+def render_old(cell: Cell, setting: Setting) -> np.ndarray:
+    """A unit of the cell (on a worker): the earlier test's many-sample reference."""
+    old_spp = 64 if cell.renderer == "report" else OLD_REF_SPP
+    return _blocks(cell.make_renderer(setting), _plan(cell, setting), setting.passes, old_spp, protocol.SEED_REFERENCE)
+
+
+def render_repetition(cell: Cell, setting: Setting, r: int) -> dict[str, np.ndarray]:
+    """A unit of the cell (on a worker): repetition r's test and equal-budget reference passes, and its seconds."""
+    renderer, scene_plan = cell.make_renderer(setting), _plan(cell, setting)
+    base = protocol.SEED_NULL + 1000 * r
+    start = time.perf_counter()
+    test = _blocks(renderer, scene_plan, setting.passes, cell.spp, base)
+    ref = _blocks(renderer, scene_plan, setting.passes, cell.spp, base + 500)
+    return {"test": test, "ref": ref, "seconds": np.float64(time.perf_counter() - start)}
+
+
+def cell_units(cell: Cell, setting: Setting, path: Path) -> list[Unit]:
+    """The cell as units: its repetitions and (where setting.old) its many-sample reference; keyed by `path`."""
+    units = [Unit(f"{path.stem}-old", render_old, (cell, setting))] if setting.old else []
+    return units + [Unit(f"{path.stem}-r{r}", render_repetition, (cell, setting, r)) for r in range(cell.repetitions)]
+
+
+def assemble(units: list[Unit], results: dict) -> dict[str, np.ndarray]:
+    """A cell's arrays from its units' results: old (K, ...), test and ref (R, K, ...), seconds (R,)."""
+    reps = [results[u.key] for u in units if u.fn is render_repetition]
+    out = {"old": results[units[0].key]} if units[0].fn is render_old else {}
+    return out | {k: np.stack([r[k] for r in reps]) for k in ("test", "ref", "seconds")}
+
+
+def write_cell(path: Path, data: dict[str, np.ndarray]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, **data)
+    tmp.replace(path)
+
+
+def run_cells(cells: list[tuple[Cell, Setting]], runner: Runner | None = None,
+              cache: Path = CACHE) -> dict[tuple[Cell, Setting], dict[str, np.ndarray]]:
+    """Every cell's rendered block means (see run_cell): read from the cache, the others rendered as one suite
+    (a unit per repetition), each cell written to the cache by this process once all its units have arrived."""
+    data, pending = {}, {}
+    for cell, setting in dict.fromkeys(cells):
+        path = cell_path(cell, cache, setting)
+        if path.exists():
+            with np.load(path) as z:
+                data[cell, setting] = dict(z)
+        else:
+            pending[cell, setting] = (path, cell_units(cell, setting, path))
+    waiting = {k: {u.key for u in units} for k, (_, units) in pending.items()}
+    owner = {u.key: k for k, (_, units) in pending.items() for u in units}
+    arrived = {}
+
+    def on_result(unit: Unit, result) -> None:
+        arrived[unit.key] = result
+        k = owner[unit.key]
+        waiting[k].discard(unit.key)
+        if not waiting[k]:
+            path, units = pending[k]
+            data[k] = assemble(units, arrived)
+            write_cell(path, data[k])
+
+    units = [u for _, us in pending.values() for u in us]
+    if units:
+        with (nullcontext(runner) if runner is not None else session(NONE)) as r:
+            r.run(units, "calibration cells", on_result)
+    return {k: data[k] for k in dict.fromkeys(cells)}
+
+
 def run_cell(cell: Cell, cache: Path = CACHE, setting: Setting = CHECK) -> dict[str, np.ndarray]:
     """The cell's rendered block means: test (R, K, ...), equal-budget reference (R, K, ...), many-sample
     reference (K, ...; where setting.old), and seconds per repetition; cached."""
-    scene_plan = plan({**SCENES, **SWEEP_SCENES}[cell.scene], size=setting.size, max_depth=cell.max_depth)
-    key = scene_plan.content_key(**asdict(cell), passes=setting.passes, old_ref_spp=OLD_REF_SPP,
-                                 report=dict(zip(REPORT, setting.report)))
-    path = cache / f"{cell.name}-{key}.npz"
-    if path.exists():
-        with np.load(path) as z:
-            return dict(z)
-    renderer = cell.make_renderer(setting)
-    out = {}
-    if setting.old:
-        old_spp = 64 if cell.renderer == "report" else OLD_REF_SPP
-        out["old"] = _blocks(renderer, scene_plan, setting.passes, old_spp, protocol.SEED_REFERENCE)
-    tests, refs, seconds = [], [], []
-    for r in tqdm(range(cell.repetitions), desc=cell.name, unit="repetition", leave=False):
-        base = protocol.SEED_NULL + 1000 * r
-        start = time.perf_counter()
-        tests.append(_blocks(renderer, scene_plan, setting.passes, cell.spp, base))
-        refs.append(_blocks(renderer, scene_plan, setting.passes, cell.spp, base + 500))
-        seconds.append(time.perf_counter() - start)
-    out |= dict(test=np.stack(tests), ref=np.stack(refs), seconds=np.array(seconds))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, **out)
-    tmp.replace(path)
-    return out
+    return run_cells([(cell, setting)], None, cache)[cell, setting]
 
 
 def rates(data: dict[str, np.ndarray]) -> dict:
@@ -152,10 +209,12 @@ def verdicts(tests: np.ndarray, refs: np.ndarray) -> dict:
     return out
 
 
-def measure_sweep(repetitions: int = 24, cache: Path = CACHE) -> tuple[list[dict], list[dict]]:
+def measure_sweep(repetitions: int = 24, cache: Path = CACHE, runner: Runner | None = None) -> tuple[list[dict], list[dict]]:
     """The scene reports' null cells (rows as measure's) and, per scene, the branching estimator's test passes
     against Mitsuba's (repetition by repetition: independent renders), as a report compares them."""
-    data = {cell: run_cell(cell, cache, SWEEP) for cell in tqdm(sweep_grid(repetitions), desc="sweep cells", unit="cell")}
+    cells = sweep_grid(repetitions)
+    rendered = run_cells([(cell, SWEEP) for cell in cells], runner, cache)
+    data = {cell: rendered[cell, SWEEP] for cell in cells}
     rows = [asdict(cell) | rates(d) for cell, d in data.items()]
     cross = []
     for scene in SWEEP_SCENES:
@@ -164,14 +223,18 @@ def measure_sweep(repetitions: int = 24, cache: Path = CACHE) -> tuple[list[dict
     return rows, cross
 
 
-def measure_check_cross(cells: list[Cell], cache: Path = CACHE) -> list[dict]:
-    """The branching estimator against Mitsuba in the check's configuration: each of `cells`' branching-estimator
-    cells against a Mitsuba cell of its own at REPORT_REFERENCE_SPP samples per camera ray, at the same depth."""
-    rows = []
-    for cell in tqdm([c for c in cells if c.renderer == "report"], desc="branching against Mitsuba", unit="cell"):
-        mitsuba = Cell(cell.scene, "mitsuba", cell.spp * REPORT_REFERENCE_SPP, cell.max_depth, cell.repetitions)
-        rows.append(asdict(cell) | _cross(run_cell(cell, cache), run_cell(mitsuba, cache)))
-    return rows
+def check_cross_cells(cells: list[Cell]) -> list[tuple[Cell, Cell]]:
+    """Each branching-estimator cell of `cells` with a Mitsuba cell of its own at REPORT_REFERENCE_SPP samples
+    per camera ray, at the same depth."""
+    return [(c, Cell(c.scene, "mitsuba", c.spp * REPORT_REFERENCE_SPP, c.max_depth, c.repetitions))
+            for c in cells if c.renderer == "report"]
+
+
+def measure_check_cross(cells: list[Cell], cache: Path = CACHE, runner: Runner | None = None) -> list[dict]:
+    """The branching estimator against Mitsuba in the check's configuration (check_cross_cells)."""
+    pairs = check_cross_cells(cells)
+    data = run_cells([(c, CHECK) for pair in pairs for c in pair], runner, cache)
+    return [asdict(cell) | _cross(data[cell, CHECK], data[mitsuba, CHECK]) for cell, mitsuba in pairs]
 
 
 def _cross(report: dict[str, np.ndarray], mitsuba: dict[str, np.ndarray]) -> dict:
@@ -212,11 +275,9 @@ def interval(k: int, n: int) -> tuple[float, float]:
     return float(lo), float(hi)
 
 
-def measure(cells: list[Cell], cache: Path = CACHE) -> list[dict]:
-    rows = []
-    for cell in tqdm(cells, desc="null comparisons", unit="cell"):
-        rows.append(asdict(cell) | rates(run_cell(cell, cache)))
-    return rows
+def measure(cells: list[Cell], cache: Path = CACHE, runner: Runner | None = None) -> list[dict]:
+    data = run_cells([(cell, CHECK) for cell in cells], runner, cache)
+    return [asdict(cell) | rates(data[cell, CHECK]) for cell in cells]
 
 
 def write_json(rows: list[dict], path: Path) -> None:
@@ -343,15 +404,19 @@ def check_process_seconds() -> tuple[float, float]:
     return times[0], times[1]
 
 
-def report(out: Path, repetitions: int = 12) -> Path:
-    """Measures (or reads from the cache) the null grid and the power table; writes `out` and its JSON."""
+def report(out: Path, repetitions: int = 12, runner: Runner | None = None) -> Path:
+    """Measures (or reads from the cache) the null grid and the power table; writes `out` and its JSON. Every
+    cell not cached renders as one suite on `runner` (default: in this process)."""
     from . import power
     from ..reports.provenance import environment, write_text
 
     start = time.perf_counter()
-    rows = measure(grid(repetitions))
+    cells = grid(repetitions)
+    run_cells([(c, CHECK) for c in cells] + [(c, SWEEP) for c in sweep_grid(2 * repetitions)]
+              + [(c, CHECK) for pair in check_cross_cells(cells) for c in pair], runner)     # one suite
+    rows = measure(cells)
     sweep_rows, cross = measure_sweep(2 * repetitions)
-    check_cross = measure_check_cross(grid(repetitions))
+    check_cross = measure_check_cross(cells)
     cells = power.measure_all()
     seconds = [c.correct.seconds for c in cells]
     cold, warm = check_process_seconds()

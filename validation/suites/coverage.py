@@ -11,16 +11,17 @@ read, never copied: the repository states no licence.
 """
 from __future__ import annotations
 
+import glob
 import re
 import time
 from collections import Counter
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from tqdm import tqdm
-
 from ..reports.provenance import environment, relative_to, write_json, write_text
-from ..verdict.scenefile import ScenePlanError, _parse
+from ..verdict.scenefile import ScenePlanError, _parse, files_digest
+from .runner import NONE, Runner, Unit, session
 
 FOLDERS = ("docs/scenes", "tests/scenes", "scenes")
 SPP = 32           # per pass: a check of Mitsuba's scenes at 16 x 32 spp, escalated up to MAX_SPP
@@ -65,41 +66,63 @@ def has_sensor(path: Path) -> bool:
 
 
 def _mitsuba_loads(path: Path) -> str:
-    from ..verdict.mitsuba_render import mitsuba
+    from ..verdict.mitsuba_render import loading, mitsuba
 
     try:
-        mitsuba().load_file(str(path))
+        with loading():      # one plugin after another: the first error, Mitsuba's message, is the same every run
+            mitsuba().load_file(str(path), parallel=False)
         return "loads"
     except Exception as e:   # Mitsuba raises RuntimeError, sometimes others; its message is the datum
         lines = [line.strip() for line in str(e).splitlines() if line.strip()]
         return (lines[-1] if lines else type(e).__name__)[:200]
 
 
-def survey(root: Path, check_scenes: bool = True) -> list[SceneOutcome]:
+def survey_scene(path: Path, root: Path, check_scenes: bool = True,
+                 files: dict[str, bytes] | None = None) -> tuple[SceneOutcome, dict[str, bytes]]:
+    """One scene (a unit of the suite, on a worker): does Mitsuba load it, does the tracer, and the check's
+    verdict where both do; with the reference files it rendered (by name; `files`: those already cached)."""
     import tracer
     from tracer.errors import UserError
 
     from ..verdict.check import Settings, check
+    from ..verdict.references import in_memory
     from ..verdict.renderers import TracerRenderer
 
-    outcomes = []
-    for path in tqdm(scene_files(root), desc="Mitsuba's scenes", unit="scene"):
-        start = time.perf_counter()
-        out = SceneOutcome(str(path.relative_to(root)), relative_to(_mitsuba_loads(path), root), "loads")
-        try:
-            tracer.load_scene(path)
-        except (tracer.SceneError, UserError) as e:
-            out.tracer = "refused" if has_sensor(path) else "fragment"
-            out.refusals = [relative_to(re.sub(r"^.*?:\d+: ", "", line), root) for line in str(e).splitlines()]
-        if out.tracer == "loads" and out.mitsuba == "loads" and check_scenes:
+    start = time.perf_counter()
+    out = SceneOutcome(str(path.relative_to(root)), relative_to(_mitsuba_loads(path), root), "loads")
+    try:
+        tracer.load_scene(path)
+    except (tracer.SceneError, UserError) as e:
+        out.tracer = "refused" if has_sensor(path) else "fragment"
+        out.refusals = [relative_to(re.sub(r"^.*?:\d+: ", "", line), root) for line in str(e).splitlines()]
+    rendered = {}
+    if out.tracer == "loads" and out.mitsuba == "loads" and check_scenes:
+        with in_memory(files or {}) as rendered:
             try:
                 result = check(path, TracerRenderer("path"), settings=Settings(spp=SPP, max_spp=MAX_SPP))
                 out.verdict, out.line = result.verdict, relative_to(result.line(), root)
             except (tracer.SceneError, UserError) as e:
                 out.verdict = f"error: {str(e).splitlines()[0][:150]}"
-        out.seconds = time.perf_counter() - start
-        outcomes.append(out)
-    return outcomes
+    out.seconds = time.perf_counter() - start
+    return out, rendered
+
+
+def survey(root: Path, check_scenes: bool = True, runner: Runner | None = None) -> list[SceneOutcome]:
+    """Every scene as a unit of one suite on `runner` (default: in this process); the references the checks
+    render are written to the cache here, as each scene's result arrives."""
+    from ..verdict.references import cache_folder, write_files
+
+    cache = cache_folder()
+    paths = scene_files(root)
+
+    def cached(path: Path) -> dict[str, bytes]:
+        return {f.name: f.read_bytes() for f in cache.glob(f"{glob.escape(path.stem)}-d*.npz")} if check_scenes else {}
+
+    units = [Unit(f"{p.relative_to(root)}-{files_digest(p)[:16]}-{'checked' if check_scenes else 'loaded'}",
+                  survey_scene, (p, root, check_scenes, cached(p))) for p in paths]
+    with (nullcontext(runner) if runner is not None else session(NONE)) as r:
+        results = r.run(units, "Mitsuba's scenes", lambda unit, result: write_files(cache, result[1]))
+    return [results[u.key][0] for u in units]
 
 
 def markdown(outcomes: list[SceneOutcome], command: str, checked: bool = True) -> str:
@@ -151,7 +174,7 @@ def markdown(outcomes: list[SceneOutcome], command: str, checked: bool = True) -
     return "\n".join(lines) + "\n"
 
 
-def report(root: Path, out: Path, command: str, check_scenes: bool = True) -> Path:
-    outcomes = survey(root, check_scenes)
+def report(root: Path, out: Path, command: str, check_scenes: bool = True, runner: Runner | None = None) -> Path:
+    outcomes = survey(root, check_scenes, runner)
     write_json(out.with_suffix(".json"), [asdict(o) for o in outcomes])
     return write_text(out, markdown(outcomes, command, check_scenes))

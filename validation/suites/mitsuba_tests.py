@@ -212,11 +212,12 @@ def tracer_render(test: RenderTest, spp: int) -> Render:
 def mitsuba_render(test: RenderTest, spp: int) -> Render:
     """Mitsuba's render as its test takes it: loaded with spp and the integrator, rendered with seed 0, and the
     mean read from the film as XYZ (the `moment` integrator's first AOV, else the image converted)."""
-    from ..verdict.mitsuba_render import mitsuba
+    from ..verdict.mitsuba_render import loading, mitsuba
 
     mi = mitsuba()
     start = time.perf_counter()
-    scene = mi.load_file(str(test.scene), spp=spp, integrator=test.integrator)
+    with loading():
+        scene = mi.load_file(str(test.scene), spp=spp, integrator=test.integrator)
     scene.integrator().render(scene, seed=SEED, spp=spp, develop=True)
     parts = scene.sensors()[0].film().bitmap(raw=False).split()
     if len(parts) > 1:

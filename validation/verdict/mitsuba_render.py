@@ -1,6 +1,8 @@
 """Mitsuba 3 renders of a scene file, as independent passes so every pixel has a mean and a variance."""
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -25,13 +27,30 @@ def mitsuba():
     return mi
 
 
+@contextmanager
+def loading() -> Iterator[None]:
+    """Around Mitsuba's loaders: its bitmap reader waits forever on a Dr.Jit thread pool of one thread (as a
+    suite's workers run, validation.suites.runner), so the pool has two threads while it loads."""
+    import drjit as dr
+
+    threads = dr.thread_count()
+    if threads < 2:
+        dr.set_thread_count(2)
+    try:
+        yield
+    finally:
+        if threads < 2:
+            dr.set_thread_count(threads)
+
+
 def render_passes(scene_file: str | Path, passes: int, spp: int, seed: int = 0, **params) -> np.ndarray:
     """(passes, height, width, 3) float32: `passes` independent renders of `spp` samples each.
 
     `params` override the scene's <default> values (width, height, max_depth, ...), as `mitsuba -D` does.
     """
     mi = mitsuba()
-    scene = mi.load_file(str(scene_file), spp=spp, **{k: v for k, v in params.items()})
+    with loading():
+        scene = mi.load_file(str(scene_file), spp=spp, **{k: v for k, v in params.items()})
     out = [np.array(mi.render(scene, seed=(seed * 1_000_003 + k) % 2**32, spp=spp), dtype=np.float32)[..., :3]
            for k in range(passes)]
     return np.stack(out)

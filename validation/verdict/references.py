@@ -17,6 +17,8 @@ import io
 import json
 import os
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -57,13 +59,44 @@ def _digest(arrays: dict[str, np.ndarray]) -> str:
     return h.hexdigest()
 
 
-def save(path: Path, ref: Reference) -> None:
-    """Writes `ref` as .npz with a checksum, atomically."""
+def encode(ref: Reference) -> bytes:
+    """`ref` as the bytes of its .npz file, with a checksum of its arrays."""
     arrays = {"mean": ref.mean, "var": ref.var, "blocks": ref.blocks}
     meta = json.dumps({"spp": ref.spp, "seconds": ref.seconds, "key": ref.key, "sha256": _digest(arrays)})
     buf = io.BytesIO()
     np.savez(buf, meta=np.array(meta), **arrays)
-    atomic_write(path, lambda tmp: Path(tmp).write_bytes(buf.getvalue()))
+    return buf.getvalue()
+
+
+def save(path: Path, ref: Reference) -> None:
+    """Writes `ref` as .npz with a checksum, atomically."""
+    data = encode(ref)
+    atomic_write(path, lambda tmp: Path(tmp).write_bytes(data))
+
+
+_files: dict[str, bytes] | None = None      # in_memory's cache files, by name
+
+
+@contextmanager
+def in_memory(files: dict[str, bytes]) -> Iterator[dict[str, bytes]]:
+    """Within it, references are read from `files` (cache files' contents by name, as a suite's process sends
+    them to a worker) and those rendered are kept in the dict it yields, never written: a worker needs no
+    disk, and the suite's process alone writes the cache (write_files)."""
+    global _files
+    rendered: dict[str, bytes] = {}
+    outer, _files = _files, {**files}
+    try:
+        yield rendered
+    finally:
+        rendered.update({k: v for k, v in _files.items() if k not in files})
+        _files = outer
+
+
+def write_files(cache: Path, files: dict[str, bytes]) -> None:
+    """Reference files a worker rendered, each written atomically unless the cache holds it already."""
+    for name, data in files.items():
+        if not (cache / name).exists():
+            atomic_write(cache / name, lambda tmp: Path(tmp).write_bytes(data))
 
 
 def load(path: Path, key: str) -> Reference | None:
@@ -95,7 +128,7 @@ def mitsuba_reference(scene_plan: ScenePlan, passes: int, spp: int, cache: Path 
     key = scene_plan.content_key(passes=passes, spp=spp, seed=seed, block=BLOCK, mitsuba=version())
     path = cache / (f"{scene_plan.path.stem}-d{scene_plan.max_depth}-{scene_plan.width}x{scene_plan.height}"
                     f"-{passes}x{spp}-{key}.npz")
-    ref = load(path, key)
+    ref = load(path if _files is None else io.BytesIO(_files.get(path.name, b"")), key)
     if ref is not None:
         return ref
     start = time.perf_counter()
@@ -103,5 +136,8 @@ def mitsuba_reference(scene_plan: ScenePlan, passes: int, spp: int, cache: Path 
     seconds = time.perf_counter() - start
     ref = Reference(p.mean(0), p.var(0, ddof=1) / passes, block_means(p, BLOCK).astype(np.float32),
                     passes * spp, seconds, key)
-    save(path, ref)
+    if _files is None:
+        save(path, ref)
+    else:
+        _files[path.name] = encode(ref)
     return ref

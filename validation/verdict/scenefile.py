@@ -84,7 +84,7 @@ class ScenePlan:
 
     def mitsuba_scene(self, spp: int):
         """The scene loaded by Mitsuba (the variant of validation.verdict.mitsuba_render.mitsuba())."""
-        from .mitsuba_render import mitsuba
+        from .mitsuba_render import loading, mitsuba
 
         mi = mitsuba()
         saved = mi.FileResolver(mi.file_resolver())
@@ -92,7 +92,8 @@ class ScenePlan:
         text = self.mitsuba_xml()
         params = {k: v for k, v in (self.params | {"spp": str(spp)}).items() if k in _names(text)}
         try:
-            return mi.load_string(text, **params)
+            with loading():
+                return mi.load_string(text, **params)
         except RuntimeError as e:
             raise ScenePlanError(f"{self.path}: Mitsuba cannot load the scene: {_last_line(e)}") from None
         finally:
