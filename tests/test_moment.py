@@ -62,4 +62,4 @@ def test_info_says_what_a_moment_renders(tmp_path, capsys):
     assert cli.main(["info", str(path)]) == 0
     out = capsys.readouterr().out
     assert "integrator: moment around path, max_depth 3, rr_depth 2" in out
-    assert "renders the nested path integrator's image" in out
+    assert "renders the nested integrator's image" in out

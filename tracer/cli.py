@@ -379,9 +379,8 @@ def _info(args) -> int:
           f"{cam.rfilter.describe()} filter")
     print(f"  sampler: {scene.spp} spp, seed {scene.seed}; integrator: {scene.integrator}, "
           f"max_depth {scene.max_depth}, rr_depth {scene.rr_depth}")
-    if scene.integrator.startswith("moment"):
-        nested = scene.integrator.split()[-1]
-        print(f"  (renders the nested {nested} integrator's image; a moment's second-moment images are not written)")
+    for note in scene.notes():
+        print(f"  ({note})")
     print(f"  ({DEPTH_NOTE})")
     print(f"  shapes: {len(scene.rectangles)} rectangles, {len(scene.meshes)} meshes "
           f"({scene.triangle_count} triangles), {len(scene.spheres)} spheres")

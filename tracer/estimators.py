@@ -17,7 +17,7 @@ import drjit as dr
 from .camera import primary_rays
 from .errors import SettingsError
 from .film import Film
-from .integrators.path import path_radiance
+from .integrators.path import Strategies, path_radiance
 from .integrators.volpath import volpath_radiance
 from .integrators.report import Wavefront, trace_level
 from .jit import NO_PRIM, Array3f, Bool, Float, UInt32, opaque_u32
@@ -56,8 +56,11 @@ class PathEstimator:
         depth = 0xFFFFFFFF if self.max_depth < 0 else self.max_depth
         rng = seeded_rng(sample, state)
         o, d, t_min, t_max, x, y = primary_rays(scene.camera, pixel, rng)
-        radiance = volpath_radiance if scene.volumetric else path_radiance
-        L, count = radiance(geo, o, d, t_min, t_max, rng, opaque_u32(depth), opaque_u32(scene.rr_depth))
+        if scene.volumetric:
+            L, count = volpath_radiance(geo, o, d, t_min, t_max, rng, opaque_u32(depth), opaque_u32(scene.rr_depth))
+        else:
+            L, count = path_radiance(geo, o, d, t_min, t_max, rng, opaque_u32(depth), opaque_u32(scene.rr_depth),
+                                     Strategies(*scene.shading_samples))
         return x, y, L, count
 
     def render_pass(self, geo, scene, film: Film, spp: int, seed: int, chunk: int, progress: bool) -> int:

@@ -31,12 +31,29 @@ from .shapes.base import ShapeArgs
 from .shapes.mesh import MeshFile, load as load_meshes
 from .spectra import rgb
 
+def _square_at_least(n: int, accept) -> int:
+    """The smallest r * r >= n with accept(r), r >= 1 (r = 1 taken only where accept(1))."""
+    r = 1
+    while r * r < n or not accept(r):
+        r += 1
+    return r * r
+
+
+# Mitsuba's samplers other than `independent` place their samples in a pattern that changes the noise, not the
+# expected image: the tracer renders them with its independent sampler (`tracer info` says so), at the sample
+# count the sampler rounds `sample_count` up to (src/samplers/*.cpp, set_sample_count).
+SAMPLE_COUNTS = {
+    "stratified": lambda n: _square_at_least(n, lambda r: True),
+    "multijitter": lambda n: (n + int(math.sqrt(n)) - 1) // int(math.sqrt(n)) * int(math.sqrt(n)),
+    "orthogonal": lambda n: _square_at_least(n, lambda r: r >= 2 and all(r % i for i in range(2, r // 2 + 1))),
+    "ldsampler": lambda n: _square_at_least(n, lambda r: r >= 2 and r & (r - 1) == 0),
+}
 SUPPORTED = {
-    "integrator": ("path", "moment", "volpath"),
+    "integrator": ("path", "moment", "volpath", "direct"),
     "sensor": ("perspective",),
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian", "tent"),
-    "sampler": ("independent",),
+    "sampler": ("independent", *SAMPLE_COUNTS),
     "shape": tuple(SHAPE_PLUGINS),
     "bsdf": tuple(BSDF_PLUGINS),
     "emitter": ("area", *LIGHT_PLUGINS),
@@ -81,6 +98,8 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     **{("medium", name): media.PARAMETERS for name in media.KINDS},
     **{("phase", name): params for name, params in media.phases.PLUGINS.items()},
     **{("volume", name): params for name, params in media.volumes.PLUGINS.items()},
+    ("integrator", "direct"): ("shading_samples", "emitter_samples", "bsdf_samples", "hide_emitters", "block_size",
+                               "samples_per_pass", "timeout"),
     ("sensor", "perspective"): ("to_world", "fov", "fov_axis", "focal_length", "near_clip", "far_clip",
                                 "focus_distance", "principal_point_offset_x", "principal_point_offset_y",
                                 "shutter_open", "shutter_close", "srf"),
@@ -91,6 +110,10 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("rfilter", "gaussian"): ("stddev",),
     ("rfilter", "tent"): ("radius",),
     ("sampler", "independent"): ("sample_count", "seed"),
+    ("sampler", "stratified"): ("sample_count", "seed", "jitter"),
+    ("sampler", "multijitter"): ("sample_count", "seed", "jitter"),
+    ("sampler", "orthogonal"): ("sample_count", "seed", "jitter", "strength"),
+    ("sampler", "ldsampler"): ("sample_count", "seed"),
     **{("shape", name): module.PLUGINS[name] for name, module in SHAPE_PLUGINS.items()},
     **{("bsdf", name): module.PLUGINS[name] for name, module in BSDF_PLUGINS.items()},
     **{("texture", name): params for name, params in textures.PLUGINS.items()},
@@ -683,6 +706,8 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
         max_depth=int(integrator.get("max_depth", -1)),
         rr_depth=int(integrator.get("rr_depth", 5)),
         integrator=integrator.get("name", "path"),
+        shading_samples=integrator.get("shading_samples", (1, 1)),
+        sampler=sampler.get("kind", "independent"),
         path=ctx.path,
     )
     for node in lights:
@@ -694,6 +719,8 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
         ctx.attempt(_add_shape, ctx, scene, node)
     _read_meshes(ctx, scene)
     _place_media(ctx, scene)
+    if scene.shading_samples[0] > 1 and scene.delta_lights:
+        ctx.errors.append(str(ctx.error(integrators[0], DELTA_SAMPLES.format(n=scene.shading_samples[0]))))
     return scene
 
 
@@ -751,6 +778,8 @@ def _integrator(ctx: _Context, node: Node) -> dict:
     props = _Props(ctx, node, kind)
     if kind == "moment":
         return _moment(ctx, node, props)
+    if kind == "direct":
+        return _direct(ctx, node, props)
     out = {"max_depth": props.get("max_depth", -1, ("integer",)), "rr_depth": props.get("rr_depth", 5, ("integer",)),
            "hide_emitters": props.get("hide_emitters", False, ("boolean",))}
     props.ignore("block_size", "samples_per_pass")        # how work is scheduled: not the estimate
@@ -779,6 +808,34 @@ def _moment(ctx: _Context, node: Node, props: _Props) -> dict:
                               "a moment around exactly one (its image is that integrator's)")
     out = _integrator(ctx, nested[0])
     return {**out, "name": f"moment around {out['name']}"}
+
+
+def _direct(ctx: _Context, node: Node, props: _Props) -> dict:
+    """Mitsuba's `direct`: the emission seen by the camera plus direct light at the first surface, from
+    `emitter_samples` light samples and `bsdf_samples` BSDF samples (both default to `shading_samples`, 1)
+    combined by the power heuristic: the path tracer at max_depth 2 drawing its strategies in those
+    proportions (integrators.path.Strategies)."""
+    if props.has("shading_samples") and (props.has("emitter_samples") or props.has("bsdf_samples")):
+        raise ctx.error(node, "give either shading_samples or emitter_samples/bsdf_samples, not both (as Mitsuba)")
+    shading = props.get("shading_samples", 1, ("integer",))
+    counts = (props.get("emitter_samples", shading, ("integer",)), props.get("bsdf_samples", shading, ("integer",)))
+    hide = props.get("hide_emitters", False, ("boolean",))
+    props.ignore("block_size", "samples_per_pass")
+    props.finish()
+    if hide:
+        raise ctx.error(props.values["hide_emitters"], "hide_emitters = true is not supported by the tracer")
+    if min(counts) < 0 or sum(counts) == 0:
+        raise ctx.error(node, f"emitter_samples and bsdf_samples must be >= 0, at least one of them positive "
+                              f"(as Mitsuba), got {counts[0]} and {counts[1]}")
+    return {"max_depth": 2, "rr_depth": 5, "name": "direct", "shading_samples": counts}
+
+
+# Mitsuba 3.9.1's direct integrator weights each emitter sample of a delta light 1, not 1 / emitter_samples
+# (src/integrators/direct.cpp): such a light comes out emitter_samples times too bright. Neither copied nor
+# silently corrected: refused.
+DELTA_SAMPLES = ("emitter_samples = {n} with a point, spot or directional light: Mitsuba weights each sample of a "
+                 "delta light 1 (not 1/{n}), making it {n}x too bright; the tracer renders direct with "
+                 "emitter_samples <= 1 in such scenes")
 
 
 def _camera(ctx: _Context, node: Node) -> tuple[Camera, dict]:
@@ -862,10 +919,14 @@ def _film(ctx: _Context, node: Node) -> dict:
 def _sampler(ctx: _Context, node: Node) -> dict:
     kind = _check_type(ctx, node)
     props = _Props(ctx, node, kind)
-    out = {"sample_count": props.get("sample_count", 4, ("integer",)), "seed": props.get("seed", 0, ("integer",))}
+    out = {"sample_count": props.get("sample_count", 4, ("integer",)), "seed": props.get("seed", 0, ("integer",)),
+           "kind": kind}
+    props.ignore("jitter", "strength")        # where the pattern places its samples: the noise, not the image
     props.finish()
     if out["sample_count"] < 1:
         raise ctx.error(node, f"sample_count must be >= 1, got {out['sample_count']}")
+    if kind in SAMPLE_COUNTS:
+        out["sample_count"] = SAMPLE_COUNTS[kind](out["sample_count"])
     return out
 
 

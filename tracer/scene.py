@@ -60,6 +60,8 @@ class Scene:
     max_depth: int = -1
     rr_depth: int = 5
     integrator: str = "path"                      # the scene's integrator, e.g. "moment around path"
+    sampler: str = "independent"                  # the scene's sampler; the tracer's samples are independent
+    shading_samples: tuple[int, int] = (1, 1)     # `direct`'s emitter and BSDF samples (integrators.path.Strategies)
     lights: list = field(default_factory=list)    # of the kinds in tracer.lights (area lights: emitting shapes)
     path: Path | None = None
     media: list = field(default_factory=list)        # of tracer.media.Medium, in the order of their codes 1, 2, ...
@@ -117,6 +119,21 @@ class Scene:
         """The emitting shapes (area lights), in primitive order."""
         return [s for s in in_primitive_order(self.shapes) if s.radiance is not None]
 
+    def notes(self) -> list[str]:
+        """How the tracer renders what the scene asks for by another method than Mitsuba, each giving the
+        same expected image (`tracer info` prints them)."""
+        out = []
+        if self.integrator.startswith("moment"):
+            out.append("renders the nested integrator's image; a moment's second-moment images are not written")
+        if self.integrator.endswith("direct"):
+            out.append(f"direct: the path estimator at max_depth 2, one sample of each strategy used per pixel "
+                       f"sample, weighted as Mitsuba weights {self.shading_samples[0]} emitter and "
+                       f"{self.shading_samples[1]} BSDF samples (the same expected image, other noise)")
+        if self.sampler != "independent":
+            out.append(f"sampler '{self.sampler}': rendered with the independent sampler at its {self.spp} spp "
+                       "(the same expected image, other noise)")
+        return out
+
     def estimator_refusals(self, estimator: str) -> list[str]:
         """What the named estimator cannot render correctly in this scene, one line each (empty: nothing)."""
         out = []
@@ -138,6 +155,10 @@ class Scene:
                 out.append(f"{self.path}: the report estimator does not render a '{wrapper}' of "
                            f"'{next(k for k in kinds if k in split)}'; use --estimator path")
                 break
+        if estimator == "report" and 0 in self.shading_samples:
+            out.append(f"{self.path}: the report estimator samples both lights and BSDFs; the scene's direct "
+                       f"integrator draws {self.shading_samples[0]} emitter and {self.shading_samples[1]} BSDF "
+                       "samples; use --estimator path")
         if estimator == "report" and any(b.every_texture() for b in self.bsdfs):
             out.append(f"{self.path}: the report estimator does not render textures (checkerboard, bitmap, "
                        "rawconstant, normalmap); use --estimator path")

@@ -22,6 +22,31 @@ from .direct import power_heuristic, sample_direct
 Q_MAX = 0.9995  # largest Russian-roulette survival probability
 
 
+class Strategies:
+    """How many samples each strategy of direct lighting draws per vertex, as Mitsuba's `direct` integrator
+    counts them (`emitter_samples`, `bsdf_samples`; the path tracer: one of each). The path draws one sample
+    of each strategy used and weights it by the power heuristic over the strategies' sample fractions,
+    w_light = (c_l p_l)^2 / ((c_l p_l)^2 + (c_b p_b)^2) (Veach 1997, eq. 9.13, c the fractions): the weights
+    of a direction still sum to 1, so the expected image is that of the counts; only the noise differs. A
+    strategy with no samples is not used: emitter sampling none (lights are found by BSDF sampling alone,
+    delta lights never), BSDF sampling none (light reaches a surface only through shadow rays: emitters seen
+    after a bounce add nothing). A plain class: Dr.Jit's loops leave it alone (not a struct of their state)."""
+
+    def __init__(self, emitter: int = 1, bsdf: int = 1):
+        self.emitter, self.bsdf = emitter, bsdf
+
+    def __repr__(self) -> str:
+        return f"Strategies(emitter={self.emitter}, bsdf={self.bsdf})"
+
+    @property
+    def fractions(self) -> tuple[float, float]:
+        total = self.emitter + self.bsdf
+        return self.emitter / total, self.bsdf / total
+
+
+PATH = Strategies()
+
+
 class PathState:
     """What a path carries from one vertex to the next (a Dr.Jit struct: the loop's state, by name).
 
@@ -41,12 +66,13 @@ class PathState:
 
 
 def path_radiance(geo: SceneGeometry, o: Array3f, d: Array3f, t_min: Float, t_max: Float, rng: PCG32,
-                  max_depth: UInt32, rr_depth: UInt32) -> tuple[Array3f, UInt32]:
+                  max_depth: UInt32, rr_depth: UInt32, strategies: Strategies = PATH) -> tuple[Array3f, UInt32]:
     """Radiance along each camera ray and the number of rays each path traced. With a BVH the paths go
     bounce by bounce (_wavefront, where SceneGeometry.bounce_by_bounce), else in one kernel
-    (_megakernel); each lane's path is the same."""
+    (_megakernel); each lane's path is the same. `strategies`: the samples of each strategy of direct
+    lighting (Mitsuba's `direct` integrator is this path tracer at max_depth 2 with its own counts)."""
     path = PathState(o, d, t_min, t_max, Bool(max_depth > 0))
-    return trace_paths(geo, rng, path, _bounce, max_depth, rr_depth)
+    return trace_paths(geo, rng, path, _bounce, max_depth, rr_depth, strategies)
 
 
 def trace_paths(geo: SceneGeometry, rng: PCG32, path, bounce, *args) -> tuple[Array3f, UInt32]:
@@ -89,9 +115,9 @@ def _wavefront(geo: SceneGeometry, rng: PCG32, path, bounce, *args) -> tuple[Arr
             compile_clock.lap()    # a bounce's thousands of walk kernels leave Dr.Jit's history
 
 
-def _bounce(geo, rng, path: PathState, max_depth, rr_depth) -> None:
+def _bounce(geo, rng, path: PathState, max_depth, rr_depth, strategies: Strategies = PATH) -> None:
     """A path's next vertex (_vertex), then Russian roulette."""
-    active_next = _vertex(geo, rng, path, max_depth)
+    active_next = _vertex(geo, rng, path, max_depth, strategies)
     path.t_min, path.t_max = Float(0.0), Float(INF)
     path.depth += 1
     rr_active = path.depth >= rr_depth
@@ -101,7 +127,7 @@ def _bounce(geo, rng, path: PathState, max_depth, rr_depth) -> None:
     path.active = active_next & (~rr_active | survive) & (dr.max(path.beta) > 0)
 
 
-def _vertex(geo, rng, path: PathState, max_depth) -> Bool:
+def _vertex(geo, rng, path: PathState, max_depth, strategies: Strategies) -> Bool:
     """One path vertex: emission (MIS-weighted), a shadow ray weighted by the BSDF (MIS-weighted against
     sampling the BSDF, where it has a non-delta lobe), and the next direction sampled from the BSDF,
     updating `path`; returns whether the path may go on."""
@@ -110,6 +136,7 @@ def _vertex(geo, rng, path: PathState, max_depth) -> Bool:
     rays += 1
     surf = geo.surface(hit)
     wi = -d
+    c_light, c_bsdf = strategies.fractions
     if geo.has_lights:
         cos_l = dr.abs(dr.dot(surf.ns, d))
         le = geo.emitted(surf, wi)
@@ -117,15 +144,18 @@ def _vertex(geo, rng, path: PathState, max_depth) -> Bool:
         pdf_light = geo.light_pdf_area(surf) * dr.square(dr.select(on_light, hit.t, 0.0)) / dr.maximum(cos_l, 1e-30)
         if geo.has_environment:              # a ray that hits nothing sees the environment
             pdf_light = dr.select(surf.valid, pdf_light, geo.environment_pdf(d))
-        w = dr.select(path.prev_delta, 1.0, power_heuristic(path.prev_pdf, pdf_light))
+        w = dr.select(path.prev_delta, 1.0, power_heuristic(path.prev_pdf * c_bsdf, pdf_light * c_light))
+        if not strategies.bsdf:          # only the camera's rays find emitters: no BSDF-sampled light
+            w = dr.select(depth == 0, 1.0, 0.0)
         L += dr.select(on_light, beta * le * w, Array3f(0.0))
     active_next = surf.valid & (depth + 1 < max_depth)
     bsdf = SurfaceBSDF(geo.materials, surf, wi, active_next)
-    if geo.has_lights:
+    if geo.has_lights and strategies.emitter:
         nee = active_next & bsdf.smooth & bsdf.lit
         geo.keep(L, nee, active_next, rng, bsdf.state())
         ds = sample_direct(geo, surf, bsdf, rng.next_float32(), rng.next_float32(), rng.next_float32(), nee)
-        L += dr.select(nee, beta * ds.value * power_heuristic(ds.pdf_light, ds.pdf_bsdf), Array3f(0.0))
+        L += dr.select(nee, beta * ds.value * power_heuristic(ds.pdf_light * c_light, ds.pdf_bsdf * c_bsdf),
+                       Array3f(0.0))
         rays += dr.select(nee, 1, 0)
     u1 = rng.next_float32()
     bs, weight = bsdf.sample(u1, Array2f(rng.next_float32(), rng.next_float32()), active_next)

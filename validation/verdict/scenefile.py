@@ -21,7 +21,8 @@ from tracer.errors import UserError
 SET_ANYWHERE = ("width", "height", "max_depth", "spp")   # -D names a check applies to any scene
 MITSUBA_FILM = (768, 576)      # hdrfilm's default size
 MITSUBA_MAX_DEPTH = -1         # the path integrator's default
-COMPARED_INTEGRATORS = ("path", "volpath")   # both renderers render the scene with the same integrator
+COMPARED_INTEGRATORS = ("path", "volpath", "direct")   # the integrators of Mitsuba a comparison renders
+DIRECT_DEPTH = 2               # the direct integrator's image: the path integrator's at max_depth 2
 
 
 class ScenePlanError(UserError, ValueError):
@@ -50,8 +51,12 @@ class ScenePlan:
         kind = _substitute(integrator.get("type", ""), self.params)
         if kind not in COMPARED_INTEGRATORS:
             raise ScenePlanError(f"{self.path}: <integrator type=\"{kind}\">: the comparison uses Mitsuba's "
-                                 "path or volpath integrator (or a moment integrator wrapping one)")
-        _set(integrator, "integer", "max_depth", str(self.max_depth))
+                                 "path, volpath or direct integrator (or a moment integrator wrapping one)")
+        if kind != "direct":
+            _set(integrator, "integer", "max_depth", str(self.max_depth))
+        elif self.max_depth != DIRECT_DEPTH:
+            raise ScenePlanError(f"{self.path}: the direct integrator renders direct light only (max_depth "
+                                 f"{DIRECT_DEPTH}); it takes no max_depth {self.max_depth}")
         return ET.tostring(root, encoding="unicode")
 
     def resolved_xml(self, spp: int) -> str:
@@ -286,7 +291,10 @@ def _integrator(root: ET.Element, params: dict[str, str]) -> ET.Element | None:
 
 
 def _scene_max_depth(root: ET.Element, params: dict[str, str], path: Path) -> int:
-    value = _value(_integrator(root, params), "max_depth", params)
+    integrator = _integrator(root, params)
+    if integrator is not None and _substitute(integrator.get("type", ""), params) == "direct":
+        return DIRECT_DEPTH
+    value = _value(integrator, "max_depth", params)
     return MITSUBA_MAX_DEPTH if value is None else _integer(value, "max_depth", path)
 
 
