@@ -47,7 +47,7 @@ def test_nested_integrator_given_by_parameter_as_in_mitsubas_tests(tmp_path):
      "hide_emitters = true is not supported"),
     (_moment(PATH, '<float name="timeout" value="2"/>'), "timeout", "'timeout' is not supported"),
     (_moment(PATH, '<integer name="max_depth" value="7"/>'), 'value="7"/>', "unreferenced property 'max_depth'"),
-    (_moment('<integrator type="direct"/>'), 'type="direct"', "unsupported integrator plugin 'direct'"),
+    (_moment('<integrator type="stokes"/>'), 'type="stokes"', "unsupported integrator plugin 'stokes'"),
     (_moment(PATH, '<sensor type="perspective"/>'), '<sensor type="perspective"/>', "is unsupported"),
 ])
 def test_a_moment_the_tracer_cannot_honour_is_refused_in_one_line(tmp_path, body, snippet, words):

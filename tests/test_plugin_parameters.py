@@ -42,7 +42,7 @@ VALUES = {
     "file_format": '<string name="file_format" value="rgbe"/>',
     "compensate": '<boolean name="compensate" value="true"/>', "banner": '<boolean name="banner" value="false"/>',
     "stddev": '<float name="stddev" value="0.3"/>', "radius": '<float name="radius" value="0.7"/>',
-    "sample_count": '<integer name="sample_count" value="3"/>', "seed": '<integer name="seed" value="5"/>',
+    "sample_count": '<integer name="sample_count" value="5"/>', "seed": '<integer name="seed" value="5"/>',
     "flip_normals": '<boolean name="flip_normals" value="true"/>',
     "silhouette_sampling_weight": '<float name="silhouette_sampling_weight" value="0.5"/>',
     "center": '<point name="center" x="1" y="2" z="3"/>',
@@ -82,6 +82,10 @@ VALUES = {
         "clearcoat_gloss", "specular", "main_specular_sampling_rate", "clearcoat_sampling_rate",
         "diffuse_reflectance_sampling_rate", "diff_trans", "specular_reflectance_sampling_rate",
         "specular_transmittance_sampling_rate", "diffuse_transmittance_sampling_rate")},
+    "shading_samples": '<integer name="shading_samples" value="2"/>',
+    "emitter_samples": '<integer name="emitter_samples" value="0"/>',
+    "bsdf_samples": '<integer name="bsdf_samples" value="0"/>',
+    "jitter": '<boolean name="jitter" value="false"/>', "strength": '<integer name="strength" value="3"/>',
     "accel": '<boolean name="accel" value="false"/>',
     "albedo": '<rgb name="albedo" value="0.2, 0.3, 0.4"/>', "sigma_t": '<rgb name="sigma_t" value="2, 3, 4"/>',
     "sample_emitters": '<boolean name="sample_emitters" value="false"/>',
@@ -95,7 +99,8 @@ NO_EFFECT = "no effect on the image"
 REFUSED = "refused"
 EXPECTED = {
     "integrator": {"max_depth": HONOURED, "rr_depth": HONOURED, "hide_emitters": REFUSED, "block_size": NO_EFFECT,
-                   "samples_per_pass": NO_EFFECT, "timeout": REFUSED},
+                   "samples_per_pass": NO_EFFECT, "timeout": REFUSED, "shading_samples": HONOURED,
+                   "emitter_samples": HONOURED, "bsdf_samples": HONOURED},
     "sensor": {"to_world": HONOURED, "fov": HONOURED, "fov_axis": REFUSED,   # fov_axis without fov: unreferenced
                "focal_length": HONOURED, "near_clip": HONOURED, "far_clip": HONOURED, "focus_distance": NO_EFFECT,
                "principal_point_offset_x": REFUSED, "principal_point_offset_y": REFUSED, "shutter_open": REFUSED,
@@ -104,7 +109,7 @@ EXPECTED = {
              "crop_width": REFUSED, "crop_height": REFUSED, "sample_border": REFUSED, "pixel_format": REFUSED,
              "component_format": REFUSED, "file_format": REFUSED, "compensate": NO_EFFECT, "banner": NO_EFFECT},
     "rfilter": {"stddev": HONOURED, "radius": HONOURED},
-    "sampler": {"sample_count": HONOURED, "seed": HONOURED},
+    "sampler": {"sample_count": HONOURED, "seed": HONOURED, "jitter": NO_EFFECT, "strength": NO_EFFECT},
     "shape": {"to_world": HONOURED, "flip_normals": HONOURED, "silhouette_sampling_weight": NO_EFFECT,
               "center": HONOURED, "radius": HONOURED, "filename": HONOURED, "face_normals": HONOURED,
               "flip_tex_coords": NO_EFFECT, "shape_index": HONOURED, "p0": HONOURED, "p1": HONOURED},
@@ -126,7 +131,8 @@ EXPECTED = {
     "emitter": {"radiance": HONOURED, "sampling_weight": NO_EFFECT, "to_world": NO_EFFECT,   # constant: uniform
                 "filename": HONOURED, "scale": HONOURED, "mis_compensation": NO_EFFECT, "bitmap": REFUSED,
                 "position": HONOURED, "intensity": HONOURED, "cutoff_angle": HONOURED, "beam_width": HONOURED,
-                "texture": REFUSED, "direction": HONOURED, "irradiance": HONOURED},
+                "texture": REFUSED, "direction": HONOURED, "irradiance": HONOURED,
+                "fov": HONOURED, "fov_axis": REFUSED, "focal_length": HONOURED},   # fov_axis without fov: unreferenced
     "medium": {"albedo": HONOURED, "sigma_t": HONOURED, "scale": HONOURED, "sample_emitters": HONOURED,
                "has_spectral_extinction": HONOURED},
     "phase": {"g": HONOURED},
@@ -140,6 +146,7 @@ SPECIAL = {   # (tag, kind, parameter) whose handling differs from the tag's oth
     ("emitter", "envmap", "to_world"): HONOURED,
     ("emitter", "point", "to_world"): HONOURED,
     ("emitter", "spot", "to_world"): HONOURED,
+    ("emitter", "projector", "to_world"): HONOURED,
     ("emitter", "directional", "to_world"): HONOURED,
     ("shape", "sphere", "flip_normals"): REFUSED,
     ("shape", "obj", "flip_tex_coords"): HONOURED,      # its test file has texture coordinates, the PLY's none
@@ -195,7 +202,7 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
                 '</texture></bsdf></shape>')
     elif tag in ("medium", "phase", "volume"):
         body = _medium_xml(tag, kind, param, p)
-    elif kind in ("constant", "point", "spot", "directional"):
+    elif kind in ("constant", "point", "spot", "directional", "projector"):
         if kind == "directional" and param == "to_world":   # a translation does not turn it
             p = '<transform name="to_world"><rotate x="1" angle="30"/></transform>'
         body = f'<emitter type="{kind}">{p}</emitter>'
@@ -241,14 +248,15 @@ def write_vol(path, data: np.ndarray, bbox=((0, 0, 0), (1, 1, 1))) -> None:
 def _fingerprint(s) -> bytes:
     cam = s.camera
     return pickle.dumps((cam.to_world.tolist(), cam.fov, cam.fov_axis, cam.near_clip, cam.far_clip, cam.width,
-                         cam.height, cam.rfilter, s.spp, s.seed, s.max_depth, s.rr_depth,
+                         cam.height, cam.rfilter, s.spp, s.seed, s.max_depth, s.rr_depth, s.shading_samples,
                          [(r.to_world.tolist(), r.bsdf, r.radiance) for r in s.rectangles],
                          [(m.vertices.tolist(), m.faces.tolist(), None if m.normals is None else m.normals.tolist(),
                            m.bsdf, m.radiance, None if m.uvs is None else m.uvs.tolist()) for m in s.meshes],
                          [(x.center.tolist(), x.radius, x.bsdf) for x in s.spheres], s.environment,
                          [(c.to_world.tolist(), c.flipped) for c in s.cylinders],
                          None if s.envmap is None else (s.envmap.image.tolist(), s.envmap.to_world.tolist()),
-                         [(light.position.tolist(), light.intensity, light.cone()) for light in s.point_lights],
+                         [(light.position.tolist(), light.intensity, light.cone(), light.projection)
+                          for light in s.point_lights],
                          [(light.direction.tolist(), light.irradiance) for light in s.directional_lights],
                          [(m.kind, m.scale, m.phase, m.sample_emitters, m.spectral_extinction,
                            *(_volume_print(v) for v in (m.sigma_t, m.albedo))) for m in s.media],
@@ -312,7 +320,7 @@ def _mitsuba_xml(tmp_path, tag: str, kind: str, param: str) -> str:
     extra = f'<string name="filename" value="{tmp_path / files[kind]}"/>' if kind in files else ""
     value = extra if param == "filename" else VALUES[param] + extra
     value += {"twosided": '<bsdf type="diffuse"/>', "moment": '<integrator type="path"/>'}.get(kind, "")
-    if tag == "sensor" and param == "fov_axis":
+    if kind in ("perspective", "projector") and param == "fov_axis":
         value += '<float name="fov" value="40"/>'
     if kind == "conductor" and param in ("eta", "k"):
         value += VALUES["k" if param == "eta" else "eta"]

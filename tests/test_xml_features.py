@@ -225,7 +225,7 @@ REFUSED = [
      '</shape>', "specular_transmittance", "other than 1"),
     ('<shape type="rectangle"><bsdf type="diffuse">\n<texture type="mesh_attribute" name="reflectance"/></bsdf>'
      '</shape>', "mesh_attribute", "unsupported texture plugin 'mesh_attribute'"),
-    ('<emitter type="projector">\n</emitter>', 'type="projector"', "unsupported emitter plugin 'projector'"),
+    ('<emitter type="sunsky">\n</emitter>', 'type="sunsky"', "unsupported emitter plugin 'sunsky'"),
 ]
 
 

@@ -328,10 +328,11 @@ class SceneGeometry:
             return self.envmap.pdf(d) * (1.0 / self.n_lights)
         return 1.0 / (self.n_lights * 4.0 * np.pi)
 
-    def sample_light(self, u_select: Float, u1: Float, u2: Float) -> LightSample:
+    def sample_light(self, u_select: Float, u1: Float, u2: Float, ref: Array3f | None = None) -> LightSample:
         """A light chosen uniformly, then a point uniform in area on it; for the environment, a direction
         uniform on the sphere, returned as y (with n = -y, prim = NO_PRIM and pdf_area its solid-angle
-        density); for a point light its position (prim = POINT_LIGHT, pdf_area the choice's probability)."""
+        density); for a point light its position (prim = POINT_LIGHT, pdf_area the choice's probability), its
+        intensity towards `ref` where it varies with direction (a spot's texture, a projector's image)."""
         n_lights = self.n_lights
         index = dr.minimum(UInt32(u_select * n_lights), n_lights - 1)
         samples = []
@@ -340,7 +341,10 @@ class SceneGeometry:
             y, n, prim = shapes.sample(e, lo, u1, u2, self)
             pdf_area = 1.0 / (n_lights * e.area) if e.area > 0 else np.inf    # no area: no power
             samples.append(LightSample(y, n, vec3(e.radiance), Float(pdf_area), prim))
-        samples += [light.sample(n_lights, self.spots) for light in self.delta_lights]
+        for light in self.delta_lights:
+            samples.append(light.sample(n_lights, self.spots))
+            if getattr(light, "varies", False) and ref is not None:
+                samples[-1].radiance = samples[-1].radiance * light.profile(ref)
         if self.has_environment:
             d = self.envmap.sample(u1, u2) if self.envmap is not None else square_to_uniform_sphere(u1, u2)
             samples.append(LightSample(d, -d, self.environment_radiance(d), Float(self.environment_pdf(d)),

@@ -504,6 +504,29 @@ class _Props:
             self.read.add(name)
             return float(default), texture
         return float(self.get(name, default, ("float", "integer"))), None
+    def fov(self) -> tuple[float, str]:
+        """A projection's field of view (degrees) and its axis, as Mitsuba's parse_fov reads them: `fov` and
+        `fov_axis`, or `focal_length` on a 35 mm film (36 x 24 mm; Mitsuba's default 50mm, diagonal)."""
+        ctx, node, props = self.ctx, self.node, self
+        if props.has("fov") and props.has("focal_length"):
+            raise ctx.error(node, "give either fov or focal_length, not both (as in Mitsuba)")
+        if props.has("fov"):
+            fov = props.get("fov", tags=("float", "integer"))
+            fov_axis = props.get("fov_axis", "x", ("string",)).lower()
+            if fov_axis not in ("x", "y", "diagonal", "smaller", "larger"):
+                raise ctx.error(node, f"fov_axis '{fov_axis}' unsupported; supported: x, y, diagonal, smaller, larger")
+        else:   # a 35 mm film (36 x 24 mm) behind a lens of this focal length; Mitsuba's default: 50mm
+            text = props.get("focal_length", "50mm", ("string",))
+            try:
+                f = float(text[:-2] if text.endswith("mm") else text)
+            except ValueError:
+                raise ctx.error(node, f"focal_length '{text}' is not of the form <x>mm") from None
+            if not f > 0:
+                raise ctx.error(node, f"focal_length must be positive, got {text}")
+            fov, fov_axis = 2.0 * math.degrees(math.atan(math.hypot(36.0, 24.0) / (2.0 * f))), "diagonal"
+        if not 0 < fov < 180:
+            raise ctx.error(node, f"fov must lie in (0, 180), got {fov}")
+        return fov, fov_axis
 
     def children(self, *tags: str) -> list[Node]:
         """Child objects of the given element types, references resolved; marked used."""
@@ -850,24 +873,7 @@ def _camera(ctx: _Context, node: Node) -> tuple[Camera, dict]:
     film = ctx.built_once(films[0], lambda n: _film(ctx, n)) if films else dict(DEFAULT_FILM)
     sampler = ctx.built_once(samplers[0], lambda n: _sampler(ctx, n)) if samplers else {}
     w, h = film["width"], film["height"]
-    if props.has("fov") and props.has("focal_length"):
-        raise ctx.error(node, "give either fov or focal_length, not both (as in Mitsuba)")
-    if props.has("fov"):
-        fov = props.get("fov", tags=("float", "integer"))
-        fov_axis = props.get("fov_axis", "x", ("string",)).lower()
-        if fov_axis not in ("x", "y", "diagonal", "smaller", "larger"):
-            raise ctx.error(node, f"fov_axis '{fov_axis}' unsupported; supported: x, y, diagonal, smaller, larger")
-    else:   # a 35 mm film (36 x 24 mm) behind a lens of this focal length; Mitsuba's default: 50mm
-        text = props.get("focal_length", "50mm", ("string",))
-        try:
-            f = float(text[:-2] if text.endswith("mm") else text)
-        except ValueError:
-            raise ctx.error(node, f"focal_length '{text}' is not of the form <x>mm") from None
-        if not f > 0:
-            raise ctx.error(node, f"focal_length must be positive, got {text}")
-        fov, fov_axis = 2.0 * math.degrees(math.atan(math.hypot(36.0, 24.0) / (2.0 * f))), "diagonal"
-    if not 0 < fov < 180:
-        raise ctx.error(node, f"fov must lie in (0, 180), got {fov}")
+    fov, fov_axis = props.fov()
     near, far = props.get("near_clip", 1e-2, ("float", "integer")), props.get("far_clip", 1e4, ("float", "integer"))
     if not 0 < near < far:
         raise ctx.error(node, f"near_clip must be positive and smaller than far_clip, got {near} and {far}")

@@ -34,7 +34,7 @@ def light_direction(geo: SceneGeometry, p: Array3f, u_select: Float, u1: Float, 
     """A light chosen uniformly and a point drawn uniformly on it (geo.sample_light), seen from p: a point on
     an area light, a point light's position, or a direction towards the environment or of a directional
     light (at infinity: distance 1 and cos_y 1 in the formulas, the shadow ray unbounded)."""
-    ls = geo.sample_light(u_select, u1, u2)
+    ls = geo.sample_light(u_select, u1, u2, p)
     to_light = ls.y - p
     dist2 = dr.squared_norm(to_light)
     if geo.has_infinite_lights:

@@ -1,16 +1,21 @@
-"""Mitsuba's `point` and `spot` emitters: delta lights at a position."""
+"""Mitsuba's `point`, `spot` and `projector` emitters: delta lights at a position, the last two with an
+intensity that varies with direction (a cone's falloff, a projected image)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import drjit as dr
 import numpy as np
 
-from ..jit import Float, UInt32, vec3
+from ..jit import Array3f, Float, UInt32, vec3
+from ..materials import Bitmap
+from ..materials.textures import TextureTables
 from ..spectra import rgb
 from .sample import POINT_LIGHT, LightSample
 
 PLUGINS = {"point": ("position", "to_world", "intensity", "sampling_weight"),
-           "spot": ("to_world", "intensity", "cutoff_angle", "beam_width", "texture", "sampling_weight")}
+           "spot": ("to_world", "intensity", "cutoff_angle", "beam_width", "texture", "sampling_weight"),
+           "projector": ("to_world", "irradiance", "scale", "fov", "fov_axis", "focal_length", "sampling_weight")}
 ENVIRONMENT = False
 
 
@@ -24,6 +29,46 @@ class PointLight:
     intensity: tuple[float, float, float]
     name: str = ""
     spot: tuple[np.ndarray, float, float] | None = None
+    image: Bitmap | None = None        # a spot's projected texture, a projector's irradiance image
+    frame: np.ndarray | None = None    # to_world's rotation: local directions (+z the axis)
+    projection: tuple[float, float] | None = None   # a projector's tan of half its field of view along x, y
+
+    @property
+    def varies(self) -> bool:
+        """Whether its intensity depends on the direction beyond a spot's falloff (`profile`)."""
+        return self.image is not None or self.projection is not None
+
+    def profile(self, ref: Array3f) -> Array3f:
+        """The factor on `intensity` towards the point `ref`. A spot's texture at uv = 1/2 + (x, y) / (2 z
+        tan cutoff) of the local direction (x, y, z) (Mitsuba's spot.cpp, direction_to_uv). A projector's
+        image at its perspective projection, uv = 1/2 - (x / tan_x, y / tan_y) / (2 z), zero outside [0, 1]^2
+        or behind it, times pi / cos^3 of the angle to the axis: the image is the irradiance on the plane at
+        distance 1 along the axis, so the intensity is E pi / cos^3 (Mitsuba's projector.cpp scales by pi
+        its irradiance at z = 1, E / (z^2 cos) = E / (d^2 cos^3))."""
+        m = self.frame
+        d = ref - vec3(self.position)
+        x, y, z = (dr.dot(vec3(m[:, k]), d) for k in range(3))
+        if self.projection is None:
+            t = float(np.tan(np.radians(self.spot[1])))
+            u, v = 0.5 + 0.5 * x / (z * t), 0.5 + 0.5 * y / (z * t)
+            inside = z > float(np.cos(np.radians(self.spot[1]))) * dr.norm(d)   # within the cone: |uv - 1/2| < 1/2
+            factor = Float(1.0)
+        else:
+            tan_x, tan_y = self.projection
+            u, v = 0.5 - 0.5 * x / (z * tan_x), 0.5 - 0.5 * y / (z * tan_y)
+            inside = (z > 0) & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
+            cos = z * dr.rsqrt(dr.squared_norm(d))
+            factor = dr.pi / (cos * cos * cos)
+        value = Array3f(factor)
+        if self.image is not None:
+            value *= self._texture.eval(UInt32(1), (u, v), inside)
+        return dr.select(inside, value, Array3f(0.0))
+
+    @property
+    def _texture(self) -> TextureTables:
+        if not hasattr(self, "_tables"):
+            self._tables = TextureTables([self.image])
+        return self._tables
 
     def cone(self) -> tuple[tuple[float, float, float], float, float, float, float]:
         """(axis, cos cutoff, cos beam width, cutoff in radians, 1 / transition width in radians); a point
@@ -43,7 +88,38 @@ class PointLight:
 
 
 def from_xml(ctx, props, node) -> PointLight:
-    return (_spot if node.attrib.get("type") == "spot" else _point)(ctx, props, node)
+    build = {"spot": _spot, "projector": _projector}.get(node.attrib.get("type"), _point)
+    return build(ctx, props, node)
+
+
+def _rotation(ctx, node, to_world: np.ndarray, what: str) -> np.ndarray:
+    linear = to_world[:3, :3]
+    if not np.allclose(linear.T @ linear, np.eye(3), atol=1e-5):
+        raise ctx.error(node, f"a {what}'s to_world must be a rotation and a translation (no scale or shear)")
+    return linear
+
+
+def _projector(ctx, props, node) -> PointLight:
+    """Mitsuba's `projector`: an image (`irradiance`, a bitmap or a colour) projected from to_world's origin
+    along its +z through a perspective frustum of the image's aspect, `scale` times."""
+    to_world = props.get("to_world", np.eye(4), ("transform",))
+    image = props.colour("irradiance", 1.0, textured=True)
+    scale = float(props.get("scale", 1.0, ("float", "integer")))
+    fov, fov_axis = props.fov()
+    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
+    props.finish()
+    frame = _rotation(ctx, node, to_world, "projector")
+    if not isinstance(image, (Bitmap, np.ndarray)):
+        raise ctx.error(node, "a projector's irradiance must be a bitmap texture or a colour")
+    intensity = rgb(np.full(3, scale)) if isinstance(image, Bitmap) else rgb(image * scale)
+    if isinstance(image, np.ndarray) and np.any(image < 0) or scale < 0:
+        raise ctx.error(node, "a projector's irradiance and scale must be non-negative")
+    h, w = image.image.shape[:2] if isinstance(image, Bitmap) else (1, 1)
+    from ..scene import Camera          # the frustum as the perspective sensor's (Mitsuba's parse_fov)
+    tan_x, tan_y = Camera(to_world, fov, fov_axis, width=w, height=h).tan_half_fov()
+    return PointLight(to_world[:3, 3].copy(), intensity, node.attrib.get("id", f"projector@{node.line}"),
+                      image=image if isinstance(image, Bitmap) else None, frame=frame,
+                      projection=(float(tan_x), float(tan_y)))
 
 
 def _point(ctx, props, node) -> PointLight:
@@ -67,15 +143,20 @@ def _spot(ctx, props, node) -> PointLight:
     intensity = props.colour("intensity", 1.0)
     cutoff = float(props.get("cutoff_angle", 20.0, ("float", "integer")))
     beam = float(props.get("beam_width", cutoff * 3.0 / 4.0, ("float", "integer")))
+    texture = props.colour("texture", 1.0, textured=True) if props.has("texture") or _texture_child(props) else None
     props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
     props.finish()
-    linear = to_world[:3, :3]
-    if not np.allclose(linear.T @ linear, np.eye(3), atol=1e-5):
-        raise ctx.error(node, "a spot light's to_world must be a rotation and a translation (no scale or shear)")
+    linear = _rotation(ctx, node, to_world, "spot light")
+    if texture is not None and not isinstance(texture, Bitmap):
+        raise ctx.error(node, "a spot light's texture must be a bitmap (spatially varying, as Mitsuba requires)")
     if not 0 < beam < cutoff < 180:
         raise ctx.error(node, f"need 0 < beam_width < cutoff_angle < 180 degrees, got {beam} and {cutoff}")
     if np.any(intensity < 0):
         raise ctx.error(node, f"intensity must be non-negative, got {rgb(intensity)}")
     axis = linear[:, 2] / np.linalg.norm(linear[:, 2])
     return PointLight(to_world[:3, 3].copy(), rgb(intensity), node.attrib.get("id", f"spot@{node.line}"),
-                      spot=(axis, cutoff, beam))
+                      spot=(axis, cutoff, beam), image=texture, frame=linear)
+
+
+def _texture_child(props) -> bool:
+    return any(o.attrib.get("name") == "texture" for o in props.objects)
