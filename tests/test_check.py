@@ -216,7 +216,7 @@ def test_coverage_counts_scenes_and_ranks_blockers(tmp_path):
     scenes.mkdir(parents=True)
     room = (SCENES / "stress" / "glass_sphere.xml").read_text()
     (scenes / "a.xml").write_text(room)
-    (scenes / "b.xml").write_text(room.replace('<bsdf type="dielectric">', '<bsdf type="pplastic">'))
+    (scenes / "b.xml").write_text(room.replace('<bsdf type="dielectric">', '<bsdf type="hair">'))
     (scenes / "c.xml").write_text(room.replace("</scene>", "<shape type='nonsense'/></scene>"))
     (scenes / "d.xml").write_text("<scene version='3.0.0'><bsdf type='diffuse' id='white'/></scene>")
     (scenes / "e.xml").write_text(room.replace("</scene>", "<shape type='obj'><string name='filename' "
@@ -229,7 +229,7 @@ def test_coverage_counts_scenes_and_ranks_blockers(tmp_path):
     assert "| scene files | 5 |" in text and "| Mitsuba loads (of the 4 scenes) | 2 |" in text
     assert "| include fragments (no sensor: parts of other scenes; not counted below) | 1 |" in text
     assert "| docs/scenes/d.xml | loads | fragment | an include fragment: no sensor |" in text
-    assert "| bsdf pplastic | 1 | 1 |" in text
+    assert "| bsdf hair | 1 | 1 |" in text
     assert "missing.obj" in outcomes[-1].refusals[0] and "docs/scenes" in outcomes[-1].refusals[0]
     assert str(tmp_path) not in text + str([o.refusals + [o.mitsuba] for o in outcomes])
     unchecked = markdown(outcomes, "validate coverage MITSUBA_DATA_DIR --no-check", checked=False)

@@ -85,7 +85,9 @@ VALUES = {
     "shading_samples": '<integer name="shading_samples" value="2"/>',
     "emitter_samples": '<integer name="emitter_samples" value="0"/>',
     "bsdf_samples": '<integer name="bsdf_samples" value="0"/>',
-    "jitter": '<boolean name="jitter" value="false"/>', "strength": '<integer name="strength" value="3"/>',
+    "jitter": '<boolean name="jitter" value="false"/>', "theta": '<float name="theta" value="30"/>',
+    "transmittance": '<rgb name="transmittance" value="0.5, 0.6, 0.7"/>',
+    "polarizing": '<boolean name="polarizing" value="false"/>', "strength": '<integer name="strength" value="3"/>',
     "accel": '<boolean name="accel" value="false"/>',
     "albedo": '<rgb name="albedo" value="0.2, 0.3, 0.4"/>', "sigma_t": '<rgb name="sigma_t" value="2, 3, 4"/>',
     "sample_emitters": '<boolean name="sample_emitters" value="false"/>',
@@ -119,6 +121,7 @@ EXPECTED = {
              "distribution": HONOURED, "alpha": HONOURED, "alpha_u": REFUSED, "alpha_v": REFUSED,
              "sample_visible": HONOURED, "weight": HONOURED, "normalmap": HONOURED,
              "flip_invalid_normals": HONOURED, "use_shadowing_function": HONOURED, "scale": HONOURED,
+             "theta": NO_EFFECT, "transmittance": HONOURED, "polarizing": NO_EFFECT,   # polarizer: unpolarized
              **{name: HONOURED for name in (
                  "base_color", "roughness", "anisotropic", "spec_trans", "sheen", "sheen_tint", "flatness", "spec_tint",
                  "metallic", "clearcoat", "clearcoat_gloss", "specular", "main_specular_sampling_rate",
@@ -155,6 +158,8 @@ SPECIAL = {   # (tag, kind, parameter) whose handling differs from the tag's oth
     ("bsdf", "roughdielectric", "specular_transmittance"): HONOURED,
     ("bsdf", "principled", "eta"): REFUSED,
     ("bsdf", "principledthin", "eta"): REFUSED,    # likewise        # a float in Mitsuba's principled: the test's <rgb> is refused
+    ("bsdf", "pplastic", "eta"): REFUSED,               # a number, not the conductors' RGB of the table
+
 }
 
 

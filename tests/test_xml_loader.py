@@ -194,8 +194,8 @@ def test_missing_scene_file(tmp_path):
 
 @pytest.mark.parametrize("body,snippet,words", [
     ('<shape type="bsplinecurve"/>', 'type="bsplinecurve"', ["bsplinecurve", "supported", "rectangle"]),
-    ('<shape type="rectangle">\n        <bsdf type="pplastic"/>\n    </shape>', 'type="pplastic"',
-     ["pplastic", "supported", "diffuse"]),
+    ('<shape type="rectangle">\n        <bsdf type="hair"/>\n    </shape>', 'type="hair"',
+     ["hair", "supported", "diffuse"]),
     ('<shape type="rectangle">\n        <emitter type="spot"/>\n    </shape>', 'type="spot"', ["spot", "supported"]),
     ('<integrator type="prbvolpath"/>', 'type="prbvolpath"', ["prbvolpath", "supported", "path"]),
 ])
@@ -209,13 +209,13 @@ def test_unsupported_plugin(tmp_path, body, snippet, words):
 
 def test_unsupported_bsdf_through_a_reference_points_at_its_definition(tmp_path):
     path = write_scene(tmp_path, '''
-    <bsdf type="pplastic" id="shiny"/>
+    <bsdf type="hair" id="shiny"/>
     <shape type="rectangle">
         <ref id="shiny"/>
     </shape>''', name="refs.xml")
     message = scene_error(path)
-    assert_located(message, path, line_of(path, 'type="pplastic"'))
-    assert "pplastic" in message and "supported" in message
+    assert_located(message, path, line_of(path, 'type="hair"'))
+    assert "hair" in message and "supported" in message
 
 
 def test_missing_mesh_file(tmp_path):

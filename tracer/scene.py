@@ -17,6 +17,11 @@ from .meshes import bounding_box
 from .shapes import Cylinder, Mesh, Rectangle, Sphere, in_primitive_order
 
 
+# Mitsuba's polarization-aware BSDFs, as its unpolarized variants render them: what differs from a polarized render
+UNPOLARIZED = {"polarizer": "half the transmittance passes, whatever theta (the polarizer's axis)",
+               "pplastic": "unpolarized Fresnel factors, as Mitsuba's own RGB variants"}
+
+
 class SceneError(ValueError):
     """A scene that cannot be rendered; the message is one line naming file, line and element."""
 
@@ -129,6 +134,9 @@ class Scene:
             out.append(f"direct: the path estimator at max_depth 2, one sample of each strategy used per pixel "
                        f"sample, weighted as Mitsuba weights {self.shading_samples[0]} emitter and "
                        f"{self.shading_samples[1]} BSDF samples (the same expected image, other noise)")
+        kinds = {b.kind for b in self.bsdfs}
+        for kind in sorted(kinds & set(UNPOLARIZED)):
+            out.append(f"{kind}: rendered as Mitsuba's RGB (unpolarized) variants render it; {UNPOLARIZED[kind]}")
         if self.sampler != "independent":
             out.append(f"sampler '{self.sampler}': rendered with the independent sampler at its {self.spp} spp "
                        "(the same expected image, other noise)")

@@ -146,6 +146,7 @@ class BSDF:
     bump_scale: float = 1.0           # a `bumpmap` around it (its texture: slot 'bumpmap'): the height's scale
     extra: tuple[tuple[str, float], ...] = ()   # a kind's own scalar parameters by name (principled's)
     textures: tuple[tuple[str, Texture], ...] = ()   # other parameters given by textures: (slot, texture)
+    pplastic_weight: float = 0.5      # pplastic's probability of sampling its specular lobe (materials.pplastic)
 
     def slot_textures(self) -> list[tuple[str, Texture]]:
         """Every parameter a texture drives, by slot: 'reflectance', 'normalmap' and the `textures`."""

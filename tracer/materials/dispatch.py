@@ -11,13 +11,13 @@ import drjit as dr
 
 from ..jit import Array2f, Array3f, Bool, Float, UInt32
 from ..sampling import coordinate_system
-from . import (bumpmap, conductor, dielectric, diffuse, normalmap, null, plastic, principled, principledthin,
-               roughconductor, roughdielectric, roughplastic, thindielectric)
+from . import (bumpmap, conductor, dielectric, diffuse, normalmap, null, plastic, polarizer, pplastic, principled,
+               principledthin, roughconductor, roughdielectric, roughplastic, thindielectric)
 from .bsdf import DELTA, NULL, SMOOTH, TRANSMISSION, BSDFSample, has_flag
 
 # a kind's code is its index
 KINDS = (diffuse, conductor, dielectric, plastic, null, thindielectric, roughconductor, roughdielectric, roughplastic,
-         principled, principledthin)
+         principled, principledthin, polarizer, pplastic)
 KIND_CODE = {module.NAME: code for code, module in enumerate(KINDS)}
 
 
