@@ -187,6 +187,9 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
             p = p.replace(VALUES["filename"], "") if param == "filename" else p
             p += f'<string name="filename" value="{name}"/>'
         body = f'<shape type="{kind}">{p}</shape>'
+        if kind == "instance":      # of a group of one sphere
+            body = ('<shape type="shapegroup" id="grp"><shape type="sphere"/></shape>'
+                    f'<shape type="instance"><ref id="grp"/>{p}</shape>')
     elif tag == "bsdf":
         inner = {"twosided": '<bsdf type="diffuse"/>', "mask": '<bsdf type="diffuse"/>', "normalmap": '<bsdf type="diffuse"/>',
                  "blendbsdf": '<bsdf type="diffuse"/><bsdf type="conductor"/>'}.get(kind, "")

@@ -54,7 +54,7 @@ SUPPORTED = {
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian", "tent"),
     "sampler": ("independent", *SAMPLE_COUNTS),
-    "shape": tuple(SHAPE_PLUGINS),
+    "shape": (*SHAPE_PLUGINS, "shapegroup", "instance"),
     "bsdf": tuple(BSDF_PLUGINS),
     "emitter": ("area", *LIGHT_PLUGINS),
     "texture": tuple(textures.PLUGINS),
@@ -115,6 +115,7 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("sampler", "orthogonal"): ("sample_count", "seed", "jitter", "strength"),
     ("sampler", "ldsampler"): ("sample_count", "seed"),
     **{("shape", name): module.PLUGINS[name] for name, module in SHAPE_PLUGINS.items()},
+    ("shape", "shapegroup"): (), ("shape", "instance"): ("to_world",),
     **{("bsdf", name): module.PLUGINS[name] for name, module in BSDF_PLUGINS.items()},
     **{("texture", name): params for name, params in textures.PLUGINS.items()},
     ("emitter", "area"): ("radiance", "sampling_weight"),
@@ -976,8 +977,14 @@ def _area_light(ctx: _Context, node: Node) -> tuple[float, float, float]:
     return rgb(value)
 
 
-def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
+def _add_shape(ctx: _Context, scene: Scene, node: Node, outer: np.ndarray | None = None, prefix: str = "") -> None:
+    """The shape of a <shape> element (placed by `outer` and named after `prefix` inside an instance)."""
     kind = _check_type(ctx, node)
+    if kind in GROUPING:
+        if outer is not None:
+            raise ctx.error(node, f"a {kind} inside a shapegroup (Mitsuba allows shapes only)")
+        GROUPING[kind](ctx, scene, node)
+        return
     props = _Props(ctx, node, kind)
     emitters = props.children("emitter")
     bsdfs = props.children("bsdf")
@@ -995,9 +1002,13 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node) -> None:
     if bsdf is None:  # Mitsuba's default: diffuse 0.5, but black on an emitter shape
         bsdf = BSDF("diffuse", (0.0,) * 3 if emitters else (0.5,) * 3)
     to_world = props.get("to_world", np.eye(4), ("transform",))
+    if outer is not None:
+        if emitters:
+            raise ctx.error(emitters[0], "an area emitter on a shape inside a shapegroup (Mitsuba refuses it)")
+        to_world = outer @ to_world
     flip = props.get("flip_normals", False, ("boolean",))
     props.ignore("silhouette_sampling_weight")   # differentiable rendering
-    name = node.attrib.get("id", f"{kind}@{node.line}")
+    name = prefix + node.attrib.get("id", f"{kind}@{node.line}")
     module = SHAPE_PLUGINS[kind]
     held = _media(ctx, props, ("interior", "exterior"))
     scene.shapes.append(module.from_xml(ctx, props, ShapeArgs(node, kind, to_world, flip, bsdf, radiance, name)))
@@ -1033,3 +1044,39 @@ def _media(ctx: _Context, props: _Props, names: tuple[str, ...]) -> dict:
             raise ctx.error(o, f"a second '{name}' medium in one <{props.node.tag}>")
         out[name] = ctx.built_once(target, lambda n: _medium(ctx, n))
     return out
+
+
+def _shapegroup(ctx: _Context, scene: Scene, node: Node) -> None:
+    """Mitsuba's `shapegroup`: shapes drawn only through `instance`s; here its members are checked."""
+    props = _Props(ctx, node, "shapegroup")
+    members = props.children("shape")
+    props.finish()
+    if "id" not in node.attrib:
+        raise ctx.error(node, "a shapegroup needs an id for instances to refer to")
+    for member in members:
+        kind = ctx.attempt(_check_type, ctx, member)
+        if kind in GROUPING:
+            ctx.errors.append(str(ctx.error(member, f"a {kind} inside a shapegroup (Mitsuba allows shapes only)")))
+
+
+def _instance(ctx: _Context, scene: Scene, node: Node) -> None:
+    """Mitsuba's `instance` of a shapegroup, placed by its to_world. The tracer expands it: each member of the
+    group becomes a shape of its own with to_world = the instance's times the member's (the image Mitsuba's
+    instancing gives; memory grows with the instances, as `tracer info` says)."""
+    props = _Props(ctx, node, "instance")
+    groups = props.children("shape")
+    to_world = props.get("to_world", np.eye(4), ("transform",))
+    props.finish()
+    if len(groups) != 1 or groups[0].attrib.get("type") != "shapegroup":
+        raise ctx.error(node, "an instance refers to exactly one shapegroup (as in Mitsuba)")
+    group = groups[0]
+    scene.instances += 1
+    prefix = f"{group.attrib.get('id', 'shapegroup')}#{scene.instances}/"
+    for member in group.children:
+        if member.tag == "ref":
+            member = ctx.ids.get(member.attrib.get("id", ""), member)
+        if member.tag == "shape" and member.attrib.get("type") not in GROUPING:
+            ctx.attempt(_add_shape, ctx, scene, member, to_world, prefix)
+
+
+GROUPING = {"shapegroup": _shapegroup, "instance": _instance}

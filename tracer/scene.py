@@ -66,6 +66,7 @@ class Scene:
     rr_depth: int = 5
     integrator: str = "path"                      # the scene's integrator, e.g. "moment around path"
     sampler: str = "independent"                  # the scene's sampler; the tracer's samples are independent
+    instances: int = 0                            # Mitsuba `instance`s, expanded into shapes of their own
     shading_samples: tuple[int, int] = (1, 1)     # `direct`'s emitter and BSDF samples (integrators.path.Strategies)
     lights: list = field(default_factory=list)    # of the kinds in tracer.lights (area lights: emitting shapes)
     path: Path | None = None
@@ -134,6 +135,9 @@ class Scene:
             out.append(f"direct: the path estimator at max_depth 2, one sample of each strategy used per pixel "
                        f"sample, weighted as Mitsuba weights {self.shading_samples[0]} emitter and "
                        f"{self.shading_samples[1]} BSDF samples (the same expected image, other noise)")
+        if self.instances:
+            out.append(f"{self.instances} instance(s) of shapegroups expanded into copies of their shapes (the same "
+                       "image; memory grows with the instances: the tracer has no two-level BVH)")
         kinds = {b.kind for b in self.bsdfs}
         for kind in sorted(kinds & set(UNPOLARIZED)):
             out.append(f"{kind}: rendered as Mitsuba's RGB (unpolarized) variants render it; {UNPOLARIZED[kind]}")
