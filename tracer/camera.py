@@ -1,4 +1,4 @@
-"""Pinhole camera with Mitsuba's `perspective` conventions."""
+"""Cameras with the conventions of Mitsuba's `perspective` (a pinhole) and `orthographic` sensors."""
 from __future__ import annotations
 
 import drjit as dr
@@ -17,6 +17,8 @@ def primary_rays(camera: Camera, pixel: UInt32, rng: PCG32):
     """
     x = Float(pixel % camera.width) + rng.next_float32()
     y = Float(pixel // camera.width) + rng.next_float32()
+    if camera.projection == "orthographic":
+        return _orthographic(camera, x, y) + (x, y)
     tan_x, tan_y = camera.tan_half_fov()
     local = dr.normalize(Array3f((1.0 - 2.0 * x / camera.width) * tan_x,
                                  (1.0 - 2.0 * y / camera.height) * tan_y, 1.0))
@@ -25,6 +27,18 @@ def primary_rays(camera: Camera, pixel: UInt32, rng: PCG32):
     o = vec3(m[:3, 3]) + Array3f(0.0) * local.x  # broadcast to the wavefront's width
     inv_z = dr.rcp(local.z)
     return o, d, camera.near_clip * inv_z, camera.far_clip * inv_z, x, y
+
+
+def _orthographic(camera: Camera, x: Float, y: Float):
+    """Mitsuba's `orthographic` sensor: parallel rays along to_world's +z from the point (1 - 2 x / width,
+    (1 - 2 y / height) / aspect, near_clip) of the local near plane (its orthographic_projection inverted;
+    to_world may scale it), reaching far_clip - near_clip beyond it."""
+    aspect = camera.width / camera.height
+    m = camera.to_world
+    lx, ly = 1.0 - 2.0 * x / camera.width, (1.0 - 2.0 * y / camera.height) / aspect
+    o = vec3(m[:3, 0]) * lx + vec3(m[:3, 1]) * ly + vec3(m[:3, 2] * camera.near_clip + m[:3, 3])
+    d = vec3(m[:3, 2] / np.linalg.norm(m[:3, 2])) + Array3f(0.0) * lx   # broadcast to the wavefront's width
+    return o, d, Float(0.0), Float(camera.far_clip - camera.near_clip)
 
 
 def pixel_count(camera: Camera) -> int:

@@ -375,7 +375,8 @@ def _info(args) -> int:
             print(f"    {name} = {value}{given}")
     else:
         print("  parameters: none (the scene declares no <default>)")
-    print(f"  camera: perspective, fov {cam.fov} ({cam.fov_axis}), {cam.width} x {cam.height}, "
+    view = f"perspective, fov {cam.fov} ({cam.fov_axis})" if cam.projection == "perspective" else "orthographic"
+    print(f"  camera: {view}, {cam.width} x {cam.height}, "
           f"{cam.rfilter.describe()} filter")
     print(f"  sampler: {scene.spp} spp, seed {scene.seed}; integrator: {scene.integrator}, "
           f"max_depth {scene.max_depth}, rr_depth {scene.rr_depth}")

@@ -50,7 +50,7 @@ SAMPLE_COUNTS = {
 }
 SUPPORTED = {
     "integrator": ("path", "moment", "volpath", "direct"),
-    "sensor": ("perspective",),
+    "sensor": ("perspective", "orthographic"),
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian", "tent"),
     "sampler": ("independent", *SAMPLE_COUNTS),
@@ -103,6 +103,7 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("sensor", "perspective"): ("to_world", "fov", "fov_axis", "focal_length", "near_clip", "far_clip",
                                 "focus_distance", "principal_point_offset_x", "principal_point_offset_y",
                                 "shutter_open", "shutter_close", "srf"),
+    ("sensor", "orthographic"): ("to_world", "near_clip", "far_clip", "shutter_open", "shutter_close", "srf"),
     ("film", "hdrfilm"): ("width", "height", "crop_offset_x", "crop_offset_y", "crop_width", "crop_height",
                           "sample_border", "pixel_format", "component_format", "file_format", "compensate",
                           "banner"),
@@ -719,7 +720,7 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
         ctx.errors.append(str(ctx.error(extra, "a second sensor: the tracer renders scenes with one sensor")))
     integrator = ctx.attempt(_integrator, ctx, integrators[0], default={}) if integrators else {}
     if not sensors:
-        ctx.errors.append(str(ctx.error(root, "the scene has no <sensor type=\"perspective\">")))
+        ctx.errors.append(str(ctx.error(root, "the scene has no <sensor> (perspective or orthographic)")))
         camera, sampler = None, {}
     else:
         camera, sampler = ctx.attempt(_camera, ctx, sensors[0], default=(None, {}))
@@ -874,24 +875,26 @@ def _camera(ctx: _Context, node: Node) -> tuple[Camera, dict]:
     film = ctx.built_once(films[0], lambda n: _film(ctx, n)) if films else dict(DEFAULT_FILM)
     sampler = ctx.built_once(samplers[0], lambda n: _sampler(ctx, n)) if samplers else {}
     w, h = film["width"], film["height"]
-    fov, fov_axis = props.fov()
+    fov, fov_axis = props.fov() if kind == "perspective" else (90.0, "x")   # orthographic: none
     near, far = props.get("near_clip", 1e-2, ("float", "integer")), props.get("far_clip", 1e4, ("float", "integer"))
     if not 0 < near < far:
         raise ctx.error(node, f"near_clip must be positive and smaller than far_clip, got {near} and {far}")
-    props.get("focus_distance", tags=("float", "integer"))   # read by Mitsuba's projective cameras; a pinhole has no focus
-    for name in ("principal_point_offset_x", "principal_point_offset_y"):
-        if props.get(name, 0.0, ("float", "integer")) != 0:
-            raise ctx.error(props.values[name], f"{name} other than 0 is not supported by the tracer")
+    if kind == "perspective":
+        props.get("focus_distance", tags=("float", "integer"))   # read by Mitsuba's projective cameras; a pinhole has no focus
+        for name in ("principal_point_offset_x", "principal_point_offset_y"):
+            if props.get(name, 0.0, ("float", "integer")) != 0:
+                raise ctx.error(props.values[name], f"{name} other than 0 is not supported by the tracer")
     shutter = [props.get(k, 0.0, ("float", "integer")) for k in ("shutter_open", "shutter_close")]
     if shutter[0] > shutter[1]:           # nothing in the scene moves: only Mitsuba's own check matters
         raise ctx.error(node, f"shutter_open ({shutter[0]}) must not exceed shutter_close ({shutter[1]}), as in Mitsuba")
     to_world = props.get("to_world", np.eye(4), ("transform",))
     props.finish()
     linear = to_world[:3, :3]
-    if not (np.allclose(linear.T @ linear, np.eye(3), atol=1e-3) and np.allclose(linear @ linear.T, np.eye(3), atol=1e-3)):
+    rigid = np.allclose(linear.T @ linear, np.eye(3), atol=1e-3) and np.allclose(linear @ linear.T, np.eye(3), atol=1e-3)
+    if kind == "perspective" and not rigid:
         raise ctx.error(props.values["to_world"], "a camera's to_world may not scale or shear (as Mitsuba): "
                                                   "translate, rotate, lookat")
-    camera = Camera(to_world, float(fov), fov_axis, float(near), float(far), w, h, film["rfilter"])
+    camera = Camera(to_world, float(fov), fov_axis, float(near), float(far), w, h, film["rfilter"], kind)
     return camera, sampler
 
 

@@ -28,7 +28,7 @@ class SceneError(ValueError):
 
 @dataclass
 class Camera:
-    """Mitsuba's `perspective` sensor with an `hdrfilm` and its reconstruction filter."""
+    """Mitsuba's `perspective` (or `orthographic`) sensor with an `hdrfilm` and its reconstruction filter."""
 
     to_world: np.ndarray
     fov: float = 90.0
@@ -38,6 +38,7 @@ class Camera:
     width: int = 768
     height: int = 576
     rfilter: ReconstructionFilter = ReconstructionFilter("gaussian")   # Mitsuba's default
+    projection: str = "perspective"      # or "orthographic": Mitsuba's sensor of that name (no fov)
 
     def tan_half_fov(self) -> tuple[float, float]:
         """tan of half the field of view along image x and y, from `fov` and `fov_axis`."""

@@ -59,6 +59,8 @@ def write(scene_plan, folder: Path) -> Path:
     emitters = []
     for light in scene.lights:
         if isinstance(light, PointLight):
+            if light.varies:
+                raise TypeError(f"scene_json: no description for a projector or a textured spot ('{light.name}')")
             e = {"type": "point" if light.spot is None else "spot", "position": _list(light.position),
                  "intensity": _list(light.intensity)}
             if light.spot is not None:
@@ -74,6 +76,8 @@ def write(scene_plan, folder: Path) -> Path:
             raise TypeError(f"scene_json: no description for the emitter {type(light).__name__}")
         emitters.append(e | {"name": light.name})
     cam = scene.camera
+    if cam.projection != "perspective":
+        raise TypeError(f"scene_json: no description for the {cam.projection} sensor")
     data = {"format": FORMAT, "source": str(scene_plan.path.resolve()),
             "camera": {"type": "perspective", "to_world": _list(cam.to_world), "fov": cam.fov,
                        "fov_axis": cam.fov_axis, "tan_half_fov": _list(cam.tan_half_fov()),
