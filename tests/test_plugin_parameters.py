@@ -85,6 +85,7 @@ VALUES = {
     "shading_samples": '<integer name="shading_samples" value="2"/>',
     "emitter_samples": '<integer name="emitter_samples" value="0"/>',
     "bsdf_samples": '<integer name="bsdf_samples" value="0"/>',
+    "aovs": '<string name="aovs" value="dd:depth"/>',
     "jitter": '<boolean name="jitter" value="false"/>', "theta": '<float name="theta" value="30"/>',
     "transmittance": '<rgb name="transmittance" value="0.5, 0.6, 0.7"/>',
     "polarizing": '<boolean name="polarizing" value="false"/>', "strength": '<integer name="strength" value="3"/>',
@@ -102,7 +103,8 @@ REFUSED = "refused"
 EXPECTED = {
     "integrator": {"max_depth": HONOURED, "rr_depth": HONOURED, "hide_emitters": REFUSED, "block_size": NO_EFFECT,
                    "samples_per_pass": NO_EFFECT, "timeout": REFUSED, "shading_samples": HONOURED,
-                   "emitter_samples": HONOURED, "bsdf_samples": HONOURED},
+                   "emitter_samples": HONOURED, "bsdf_samples": HONOURED,
+                   "aovs": NO_EFFECT},     # AOV channels beside the image, which the tracer does not write
     "sensor": {"to_world": HONOURED, "fov": HONOURED, "fov_axis": REFUSED,   # fov_axis without fov: unreferenced
                "focal_length": HONOURED, "near_clip": HONOURED, "far_clip": HONOURED, "focus_distance": NO_EFFECT,
                "principal_point_offset_x": REFUSED, "principal_point_offset_y": REFUSED, "shutter_open": REFUSED,
@@ -168,7 +170,7 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
     p = VALUES[param] if param else ""
     header, body = HEADER, ""
     if tag == "integrator":
-        nested = '<integrator type="path"/>' if kind == "moment" else ""
+        nested = '<integrator type="path"/>' if kind in ("moment", "aov") else ""
         body = f'<integrator type="{kind}">{p}{nested}</integrator>'
     elif tag == "sensor":
         header = HEADER.replace('<sensor type="perspective">', f'<sensor type="perspective">{p}')
@@ -327,7 +329,8 @@ def _mitsuba_xml(tmp_path, tag: str, kind: str, param: str) -> str:
              "gridvolume": "a.vol"}
     extra = f'<string name="filename" value="{tmp_path / files[kind]}"/>' if kind in files else ""
     value = extra if param == "filename" else VALUES[param] + extra
-    value += {"twosided": '<bsdf type="diffuse"/>', "moment": '<integrator type="path"/>'}.get(kind, "")
+    value += {"twosided": '<bsdf type="diffuse"/>', "moment": '<integrator type="path"/>',
+              "aov": '<integrator type="path"/>'}.get(kind, "")
     if kind in ("perspective", "projector") and param == "fov_axis":
         value += '<float name="fov" value="40"/>'
     if kind == "conductor" and param in ("eta", "k"):

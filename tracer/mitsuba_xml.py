@@ -49,7 +49,7 @@ SAMPLE_COUNTS = {
     "ldsampler": lambda n: _square_at_least(n, lambda r: r >= 2 and r & (r - 1) == 0),
 }
 SUPPORTED = {
-    "integrator": ("path", "moment", "volpath", "direct"),
+    "integrator": ("path", "moment", "volpath", "direct", "aov"),
     "sensor": ("perspective", "orthographic"),
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian", "tent"),
@@ -98,6 +98,7 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     **{("medium", name): media.PARAMETERS for name in media.KINDS},
     **{("phase", name): params for name, params in media.phases.PLUGINS.items()},
     **{("volume", name): params for name, params in media.volumes.PLUGINS.items()},
+    ("integrator", "aov"): ("aovs",),
     ("integrator", "direct"): ("shading_samples", "emitter_samples", "bsdf_samples", "hide_emitters", "block_size",
                                "samples_per_pass", "timeout"),
     ("sensor", "perspective"): ("to_world", "fov", "fov_axis", "focal_length", "near_clip", "far_clip",
@@ -805,6 +806,8 @@ def _integrator(ctx: _Context, node: Node) -> dict:
         return _moment(ctx, node, props)
     if kind == "direct":
         return _direct(ctx, node, props)
+    if kind == "aov":
+        return _aov(ctx, node, props)
     out = {"max_depth": props.get("max_depth", -1, ("integer",)), "rr_depth": props.get("rr_depth", 5, ("integer",)),
            "hide_emitters": props.get("hide_emitters", False, ("boolean",))}
     props.ignore("block_size", "samples_per_pass")        # how work is scheduled: not the estimate
@@ -833,6 +836,28 @@ def _moment(ctx: _Context, node: Node, props: _Props) -> dict:
                               "a moment around exactly one (its image is that integrator's)")
     out = _integrator(ctx, nested[0])
     return {**out, "name": f"moment around {out['name']}"}
+
+
+AOV_TYPES = ("albedo", "depth", "position", "uv", "geo_normal", "sh_normal", "dp_du", "dp_dv", "duv_dx", "duv_dy",
+             "prim_index", "shape_index")     # Mitsuba 3.9's aov integrator (src/integrators/aov.cpp)
+
+
+def _aov(ctx: _Context, node: Node, props: _Props) -> dict:
+    """Mitsuba's `aov`: its image is its first nested integrator's; the AOVs (`aovs`, "name:type, ...") and
+    further nested integrators' images are extra channels, which the tracer does not write (`tracer info`)."""
+    spec = props.get("aovs", "", ("string",))
+    nested = props.children("integrator")
+    props.finish()
+    for token in (t.strip() for t in re.split(r"[,\s]+", spec) if t.strip()):
+        name, _, kind = token.partition(":")
+        if not name or kind not in AOV_TYPES:
+            raise ctx.error(props.values["aovs"], f"invalid AOV '{token}': need name:type, type one of "
+                                                  f"{', '.join(AOV_TYPES)} (as Mitsuba)")
+    if not nested:
+        raise ctx.error(node, "an aov integrator without a nested integrator: its image holds no colour; the "
+                              "tracer renders the image of the first nested integrator")
+    out = _integrator(ctx, nested[0])
+    return {**out, "name": f"aov around {out['name']}"}
 
 
 def _direct(ctx: _Context, node: Node, props: _Props) -> dict:

@@ -132,6 +132,9 @@ class Scene:
         out = []
         if self.integrator.startswith("moment"):
             out.append("renders the nested integrator's image; a moment's second-moment images are not written")
+        if "aov around" in self.integrator:
+            out.append("renders the aov integrator's first nested integrator's image; its AOV channels (and "
+                       "further nested integrators' images) are not written")
         if self.integrator.endswith("direct"):
             out.append(f"direct: the path estimator at max_depth 2, one sample of each strategy used per pixel "
                        f"sample, weighted as Mitsuba weights {self.shading_samples[0]} emitter and "

@@ -279,14 +279,15 @@ def _film_size(root: ET.Element, params: dict[str, str], path: Path) -> tuple[in
 
 def _integrator(root: ET.Element, params: dict[str, str]) -> ET.Element | None:
     """The scene's integrator; for Mitsuba's `moment` (which adds a second-moment image to the image of the
-    integrator it wraps), the wrapped one."""
+    integrator it wraps) and `aov` (AOV channels beside its first nested integrator's image), the wrapped one."""
     node = root.find("integrator")
-    while node is not None and _substitute(node.get("type", ""), params) == "moment":
+    while node is not None and _substitute(node.get("type", ""), params) in ("moment", "aov"):
+        kind = _substitute(node.get("type", ""), params)
         nested = node.findall("integrator")
-        if len(nested) != 1:
-            raise ScenePlanError(f"<integrator type=\"moment\"> wraps {len(nested)} integrators; the comparison "
+        if len(nested) != 1 and not (kind == "aov" and nested):
+            raise ScenePlanError(f"<integrator type=\"{kind}\"> wraps {len(nested)} integrators; the comparison "
                                  "takes the image of exactly one")
-        node = nested[0]
+        node = nested[0]      # an aov integrator's image is its first nested integrator's
     return node
 
 
