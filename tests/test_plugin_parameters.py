@@ -86,6 +86,7 @@ VALUES = {
     "emitter_samples": '<integer name="emitter_samples" value="0"/>',
     "bsdf_samples": '<integer name="bsdf_samples" value="0"/>',
     "aovs": '<string name="aovs" value="dd:depth"/>',
+    "aperture_radius": '<float name="aperture_radius" value="0.2"/>',
     "jitter": '<boolean name="jitter" value="false"/>', "theta": '<float name="theta" value="30"/>',
     "transmittance": '<rgb name="transmittance" value="0.5, 0.6, 0.7"/>',
     "polarizing": '<boolean name="polarizing" value="false"/>', "strength": '<integer name="strength" value="3"/>',
@@ -108,7 +109,7 @@ EXPECTED = {
     "sensor": {"to_world": HONOURED, "fov": HONOURED, "fov_axis": REFUSED,   # fov_axis without fov: unreferenced
                "focal_length": HONOURED, "near_clip": HONOURED, "far_clip": HONOURED, "focus_distance": NO_EFFECT,
                "principal_point_offset_x": REFUSED, "principal_point_offset_y": REFUSED, "shutter_open": REFUSED,
-               "shutter_close": NO_EFFECT, "srf": REFUSED},
+               "shutter_close": NO_EFFECT, "srf": REFUSED, "aperture_radius": HONOURED},
     "film": {"width": HONOURED, "height": HONOURED, "crop_offset_x": REFUSED, "crop_offset_y": REFUSED,
              "crop_width": REFUSED, "crop_height": REFUSED, "sample_border": REFUSED, "pixel_format": REFUSED,
              "component_format": REFUSED, "file_format": REFUSED, "compensate": NO_EFFECT, "banner": NO_EFFECT},
@@ -152,6 +153,7 @@ SPECIAL = {   # (tag, kind, parameter) whose handling differs from the tag's oth
     ("emitter", "point", "to_world"): HONOURED,
     ("emitter", "spot", "to_world"): HONOURED,
     ("emitter", "projector", "to_world"): HONOURED,
+    ("sensor", "thinlens", "focus_distance"): HONOURED,
     ("emitter", "directional", "to_world"): HONOURED,
     ("shape", "sphere", "flip_normals"): REFUSED,
     ("shape", "obj", "flip_tex_coords"): HONOURED,      # its test file has texture coordinates, the PLY's none
@@ -173,7 +175,8 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
         nested = '<integrator type="path"/>' if kind in ("moment", "aov") else ""
         body = f'<integrator type="{kind}">{p}{nested}</integrator>'
     elif tag == "sensor":
-        header = HEADER.replace('<sensor type="perspective">', f'<sensor type="perspective">{p}')
+        lens = '<float name="aperture_radius" value="0.1"/>' if kind == "thinlens" and param != "aperture_radius" else ""
+        header = HEADER.replace('<sensor type="perspective">', f'<sensor type="{kind}">{lens}{p}')
     elif tag == "film" and param in ("width", "height"):
         header = HEADER.replace(f'<integer name="{param}" value="{8 if param == "width" else 6}"/>', p)
     elif tag == "film":
@@ -258,6 +261,7 @@ def write_vol(path, data: np.ndarray, bbox=((0, 0, 0), (1, 1, 1))) -> None:
 def _fingerprint(s) -> bytes:
     cam = s.camera
     return pickle.dumps((cam.to_world.tolist(), cam.fov, cam.fov_axis, cam.near_clip, cam.far_clip, cam.width,
+                         cam.projection, cam.aperture_radius, cam.focus_distance,
                          cam.height, cam.rfilter, s.spp, s.seed, s.max_depth, s.rr_depth, s.shading_samples,
                          [(r.to_world.tolist(), r.bsdf, r.radiance) for r in s.rectangles],
                          [(m.vertices.tolist(), m.faces.tolist(), None if m.normals is None else m.normals.tolist(),
@@ -331,7 +335,9 @@ def _mitsuba_xml(tmp_path, tag: str, kind: str, param: str) -> str:
     value = extra if param == "filename" else VALUES[param] + extra
     value += {"twosided": '<bsdf type="diffuse"/>', "moment": '<integrator type="path"/>',
               "aov": '<integrator type="path"/>'}.get(kind, "")
-    if kind in ("perspective", "projector") and param == "fov_axis":
+    if kind == "thinlens" and param != "aperture_radius":
+        value += VALUES["aperture_radius"]
+    if kind in ("perspective", "thinlens", "projector") and param == "fov_axis":
         value += '<float name="fov" value="40"/>'
     if kind == "conductor" and param in ("eta", "k"):
         value += VALUES["k" if param == "eta" else "eta"]

@@ -1,17 +1,20 @@
-"""Cameras with the conventions of Mitsuba's `perspective` (a pinhole) and `orthographic` sensors."""
+"""Cameras with the conventions of Mitsuba's `perspective` (a pinhole), `thinlens` and `orthographic` sensors."""
 from __future__ import annotations
 
 import drjit as dr
 import numpy as np
 
 from .jit import Array3f, Float, PCG32, UInt32, vec3
+from .sampling import square_to_uniform_disk_concentric
 from .scene import Camera
 
 
 def primary_rays(camera: Camera, pixel: UInt32, rng: PCG32):
     """Rays through film positions jittered uniformly inside their pixel (pixel = y * width + x).
 
-    Local +z looks forward, +x left and +y up, so pixel (0, 0) is the top-left one, as in Mitsuba.
+    Local +z looks forward, +x left and +y up, so pixel (0, 0) is the top-left one, as in Mitsuba. A thin
+    lens (Mitsuba's `thinlens`) starts each ray at a point drawn uniformly on its disk (concentric map) and
+    aims it at the pixel's point on the plane at focus_distance.
     Returns (origin, direction, t_min, t_max, x, y): t_min/t_max are the near and far clip planes,
     (x, y) the film position in pixels, where the film splats the sample.
     """
@@ -20,11 +23,17 @@ def primary_rays(camera: Camera, pixel: UInt32, rng: PCG32):
     if camera.projection == "orthographic":
         return _orthographic(camera, x, y) + (x, y)
     tan_x, tan_y = camera.tan_half_fov()
-    local = dr.normalize(Array3f((1.0 - 2.0 * x / camera.width) * tan_x,
-                                 (1.0 - 2.0 * y / camera.height) * tan_y, 1.0))
+    local = Array3f((1.0 - 2.0 * x / camera.width) * tan_x, (1.0 - 2.0 * y / camera.height) * tan_y, 1.0)
     m = camera.to_world
+    if camera.aperture_radius > 0:     # a thin lens: through a point of its disk towards the focal plane's point
+        lx, ly = square_to_uniform_disk_concentric(rng.next_float32(), rng.next_float32())
+        lens = Array3f(lx * camera.aperture_radius, ly * camera.aperture_radius, 0.0)
+        local = local * camera.focus_distance - lens
+    local = dr.normalize(local)
     d = dr.normalize(vec3(m[:3, 0]) * local.x + vec3(m[:3, 1]) * local.y + vec3(m[:3, 2]) * local.z)
     o = vec3(m[:3, 3]) + Array3f(0.0) * local.x  # broadcast to the wavefront's width
+    if camera.aperture_radius > 0:
+        o += vec3(m[:3, 0]) * lens.x + vec3(m[:3, 1]) * lens.y
     inv_z = dr.rcp(local.z)
     return o, d, camera.near_clip * inv_z, camera.far_clip * inv_z, x, y
 

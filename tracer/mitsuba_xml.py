@@ -50,7 +50,7 @@ SAMPLE_COUNTS = {
 }
 SUPPORTED = {
     "integrator": ("path", "moment", "volpath", "direct", "aov"),
-    "sensor": ("perspective", "orthographic"),
+    "sensor": ("perspective", "thinlens", "orthographic"),
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian", "tent"),
     "sampler": ("independent", *SAMPLE_COUNTS),
@@ -104,6 +104,8 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("sensor", "perspective"): ("to_world", "fov", "fov_axis", "focal_length", "near_clip", "far_clip",
                                 "focus_distance", "principal_point_offset_x", "principal_point_offset_y",
                                 "shutter_open", "shutter_close", "srf"),
+    ("sensor", "thinlens"): ("to_world", "fov", "fov_axis", "focal_length", "near_clip", "far_clip", "focus_distance",
+                             "aperture_radius", "shutter_open", "shutter_close", "srf"),
     ("sensor", "orthographic"): ("to_world", "near_clip", "far_clip", "shutter_open", "shutter_close", "srf"),
     ("film", "hdrfilm"): ("width", "height", "crop_offset_x", "crop_offset_y", "crop_width", "crop_height",
                           "sample_border", "pixel_format", "component_format", "file_format", "compensate",
@@ -900,10 +902,19 @@ def _camera(ctx: _Context, node: Node) -> tuple[Camera, dict]:
     film = ctx.built_once(films[0], lambda n: _film(ctx, n)) if films else dict(DEFAULT_FILM)
     sampler = ctx.built_once(samplers[0], lambda n: _sampler(ctx, n)) if samplers else {}
     w, h = film["width"], film["height"]
-    fov, fov_axis = props.fov() if kind == "perspective" else (90.0, "x")   # orthographic: none
+    fov, fov_axis = props.fov() if kind != "orthographic" else (90.0, "x")   # orthographic: none
     near, far = props.get("near_clip", 1e-2, ("float", "integer")), props.get("far_clip", 1e4, ("float", "integer"))
     if not 0 < near < far:
         raise ctx.error(node, f"near_clip must be positive and smaller than far_clip, got {near} and {far}")
+    lens = {}
+    if kind == "thinlens":
+        if not props.has("aperture_radius"):
+            raise ctx.error(node, "a thinlens sensor needs aperture_radius (as Mitsuba)")
+        lens = {"aperture_radius": float(props.get("aperture_radius", tags=("float", "integer"))),
+                "focus_distance": float(props.get("focus_distance", far, ("float", "integer")))}
+        if not lens["aperture_radius"] > 0 or not lens["focus_distance"] > 0:
+            raise ctx.error(node, f"aperture_radius and focus_distance must be positive, got "
+                                  f"{lens['aperture_radius']} and {lens['focus_distance']}")
     if kind == "perspective":
         props.get("focus_distance", tags=("float", "integer"))   # read by Mitsuba's projective cameras; a pinhole has no focus
         for name in ("principal_point_offset_x", "principal_point_offset_y"):
@@ -916,10 +927,11 @@ def _camera(ctx: _Context, node: Node) -> tuple[Camera, dict]:
     props.finish()
     linear = to_world[:3, :3]
     rigid = np.allclose(linear.T @ linear, np.eye(3), atol=1e-3) and np.allclose(linear @ linear.T, np.eye(3), atol=1e-3)
-    if kind == "perspective" and not rigid:
+    if kind != "orthographic" and not rigid:
         raise ctx.error(props.values["to_world"], "a camera's to_world may not scale or shear (as Mitsuba): "
                                                   "translate, rotate, lookat")
-    camera = Camera(to_world, float(fov), fov_axis, float(near), float(far), w, h, film["rfilter"], kind)
+    camera = Camera(to_world, float(fov), fov_axis, float(near), float(far), w, h, film["rfilter"],
+                    "orthographic" if kind == "orthographic" else "perspective", **lens)
     return camera, sampler
 
 

@@ -28,7 +28,8 @@ class SceneError(ValueError):
 
 @dataclass
 class Camera:
-    """Mitsuba's `perspective` (or `orthographic`) sensor with an `hdrfilm` and its reconstruction filter."""
+    """Mitsuba's `perspective` (or `thinlens`, or `orthographic`) sensor with an `hdrfilm` and its
+    reconstruction filter."""
 
     to_world: np.ndarray
     fov: float = 90.0
@@ -39,6 +40,8 @@ class Camera:
     height: int = 576
     rfilter: ReconstructionFilter = ReconstructionFilter("gaussian")   # Mitsuba's default
     projection: str = "perspective"      # or "orthographic": Mitsuba's sensor of that name (no fov)
+    aperture_radius: float = 0.0         # a `thinlens` sensor's lens (0: a pinhole)
+    focus_distance: float = 0.0          # the distance along the view axis that it brings into focus
 
     def tan_half_fov(self) -> tuple[float, float]:
         """tan of half the field of view along image x and y, from `fov` and `fov_axis`."""
