@@ -5,7 +5,7 @@ A scene's primitives are numbered kind after kind in the order of SETS, planar k
 keeps their hit points inside by their frames). A new kind is a module with a host dataclass, `from_xml`,
 PLUGINS and a ShapeSet subclass (its `kind`), listed here.
 """
-from . import cylinder, mesh, rectangle, sphere
+from . import cube, cylinder, mesh, rectangle, sphere
 from .base import ShapeArgs, ShapeSet
 from .cylinder import Cylinder, CylinderSet
 from .mesh import BVH_THRESHOLD, Mesh, MeshSet
@@ -13,7 +13,7 @@ from .rectangle import Rectangle, RectangleSet
 from .sphere import Sphere, SphereSet
 
 SETS: tuple[type[ShapeSet], ...] = (RectangleSet, MeshSet, SphereSet, CylinderSet)
-PLUGINS = {name: module for module in (rectangle, sphere, cylinder, mesh) for name in module.PLUGINS}
+PLUGINS = {name: module for module in (rectangle, sphere, cylinder, mesh, cube) for name in module.PLUGINS}
 
 
 def in_primitive_order(shapes: list) -> list:
