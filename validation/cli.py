@@ -196,9 +196,9 @@ def _check_parser(sub) -> None:
                    f"check (default {protocol.ALPHA:g})")
     k.add_argument("--margin", type=_margin, nargs="+", metavar="PERCENT", help="test equivalence within this "
                    "margin of the image mean (e.g. 1%%) and, optionally, a second margin per block (default "
-                   f"{protocol.BLOCK_MARGIN:.0%} of a block's mean or of the image mean where the block is darker): "
+                   f"{protocol.BLOCK_MARGIN * 100:.0f}%% of a block's mean or of the image mean where the block is darker): "
                    "equivalent / disagree / inconclusive, raising the spp per pass until decided or --max-spp. "
-                   f"Default: {protocol.CI_MARGIN:.0%} where the environment variable CI is set (CI services set "
+                   f"Default: {protocol.CI_MARGIN * 100:.0f}%% where the environment variable CI is set (CI services set "
                    "it), else none; 'none': a test of difference only (agree / disagree)")
     k.add_argument("--json", type=Path, metavar="FILE", help="write the results as JSON")
     k.add_argument("--junit", type=Path, metavar="FILE", help="write JUnit XML (one test case per check)")
