@@ -63,6 +63,19 @@ def test_a_bias_at_the_margin_is_rarely_called_equivalent():
     assert equivalent < 40
 
 
+def test_equivalence_does_not_depend_on_the_units():
+    """A block of radiance 1e-20 (numerical dust at a grazing light) is tested as one of radiance 1: the
+    Welch degrees of freedom are computed in shares of the variance, whose squares would underflow, in float32
+    passes too."""
+    margin = Margin(0.01, 0.2)
+    a, b = normal_passes(3, sd=0.02), normal_passes(4, sd=0.02)
+    for scale in (1.0, 1e-20):
+        tiny = [x.astype(np.float32) for x in (a, b)]
+        tiny[0][:, 0, 0], tiny[1][:, 0, 0] = a[:, 0, 0] * scale, b[:, 0, 0] * scale
+        c = compare(tiny[0], tiny[1], 1e-3, margin)
+        assert c.equivalent_map.all() and c.verdict == "equivalent", scale
+
+
 def test_black_images_are_equivalent():
     black = np.zeros((16, 4, 4, 3))
     assert compare(black, black, 1e-3, Margin(0.01, 0.1)).verdict == "equivalent"

@@ -194,8 +194,8 @@ def _moments(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, ...]:
     ma, mb = a.mean(0), b.mean(0)
     va, vb = a.var(0, ddof=1) / ka, b.var(0, ddof=1) / kb
     se2 = va + vb
-    with np.errstate(divide="ignore", invalid="ignore"):
-        df = se2 ** 2 / (va ** 2 / (ka - 1) + vb ** 2 / (kb - 1))
+    with np.errstate(divide="ignore", invalid="ignore"):   # in shares of se2: squares of tiny variances underflow
+        df = 1 / ((va / se2) ** 2 / (ka - 1) + (vb / se2) ** 2 / (kb - 1))
     return ma, mb, np.sqrt(se2), df
 
 
@@ -281,6 +281,7 @@ def compare(a: np.ndarray, b: np.ndarray, alpha: float, margin: Margin | None = 
     correction for the number of tests (Berger 1982)."""
     if len(a) < 3 or len(b) < 3:
         raise ValueError("the comparison needs at least three passes of each renderer")
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     t, p = _welch(a, b)
     ma, mb, se, df = _moments(a, b)
     block_level, image_level = alpha / 2 / p.size, alpha / 6
