@@ -52,3 +52,12 @@ def test_a_missing_peer_environment_is_refused_in_one_line(tmp_path, monkeypatch
 def test_peer_options_are_checked():
     with pytest.raises(Exception, match="no mistake 'x'"):
         PeerRenderer.named("cycles", mistake="x")
+
+
+@needs_peers
+def test_luxcore_refuses_the_conductors_it_renders_differently(tmp_path, capsys, monkeypatch):
+    """LuxCore's metal2 is not Mitsuba's smooth conductor (reports/peers.md: a gold sphere under uniform light
+    disagrees, +2.6%): such scenes are skipped, a perfect mirror is not."""
+    monkeypatch.setenv("VALIDATE_CACHE", str(tmp_path))
+    assert cli.main(["check", str(SCENES / "constant_environment.xml"), "--renderer", "luxcore", "--size", "8"]) == 0
+    assert "metal2" in capsys.readouterr().out

@@ -49,11 +49,11 @@ def renderers() -> dict:
             "numpy": ExternalRenderer(numpy, name=NUMPY_LABEL, jobs=2)}
 
 
-def depths(scene: Path) -> list[int | None]:
+def depths(scene: Path, own_only: bool = False) -> list[int | None]:
     from ..verdict.scenefile import plan
 
     own = plan(scene).max_depth
-    return [2, 3] + ([None] if own not in (2, 3) else [])
+    return [None] if own_only else [2, 3] + ([None] if own not in (2, 3) else [])
 
 
 def one(scene: Path, renderer, depth: int | None, settings: Settings) -> dict:
@@ -130,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--output", type=Path, default=ROOT / "reports" / "peers.md")
     ap.add_argument("--only", nargs="+", choices=("cycles", "luxcore", "tracer", "mitsuba", "numpy",
                                                         "mistakes"))
+    ap.add_argument("--own-depth", action="store_true", help="only at each scene's own max_depth")
     ap.add_argument("--write", action="store_true", help="only write the Markdown from the JSON")
     args = ap.parse_args(argv)
     store = args.output.with_suffix(".json")
@@ -146,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.only and name not in args.only:
             continue
         for scene in args.scenes:
-            todo += [(scene, renderer, d) for d in depths(scene)]
+            todo += [(scene, renderer, d) for d in depths(scene, args.own_depth)]
     if not args.only or "mistakes" in args.only:
         for peer in ("cycles", "luxcore"):
             for mistake in MISTAKES:

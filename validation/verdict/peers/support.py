@@ -26,13 +26,13 @@ def refusal(data: dict, peer: str) -> str | None:
             return (f"the '{e['type']}' emitter: the adapter converts area emitters and the constant environment "
                     "only")
     for i, m in enumerate(data["materials"]):
-        why = _material(m)
+        why = _material(m, peer)
         if why:
             return f"material {i} ('{m['type']}'): {why}"
     return None
 
 
-def _material(m: dict) -> str | None:
+def _material(m: dict, peer: str) -> str | None:
     if m["type"] not in ("diffuse", "conductor", "dielectric"):
         return "the adapter converts diffuse, conductor and dielectric materials only"
     if m["texture"] is not None or m["normalmap"] is not None:
@@ -43,6 +43,9 @@ def _material(m: dict) -> str | None:
         return "a two-sided material with a different back is not converted"
     if m["type"] == "conductor" and m["specular_reflectance"] != [1.0, 1.0, 1.0]:
         return "a conductor's specular_reflectance other than 1 has no counterpart"
+    if m["type"] == "conductor" and peer == "luxcore" and not mirror(m):
+        return ("a conductor other than a perfect mirror: LuxCore's metal2 at roughness 0 is not the exact Fresnel "
+                "conductor (a gold sphere under uniform light: +2.6% image mean, reports/peers.md)")
     if m["type"] == "dielectric" and (m["specular_reflectance"] != [1.0, 1.0, 1.0]
                                       or m["specular_transmittance"] != [1.0, 1.0, 1.0]):
         return "a dielectric's specular_reflectance or specular_transmittance other than 1 has no counterpart"
