@@ -12,8 +12,9 @@ The mapping (README "Peers"):
   zero there) is LuxCore's gaussian of width 4 s and alpha 1 / (2 s^2), the same function;
 - one-sided surfaces: a `twosided` LuxCore material with a black matte behind reflection-only materials that
   are not two-sided; area lights emit from the front only (LuxCore's own convention, emission.theta 90);
-- materials: matte (diffuse), mirror (a perfect-mirror conductor), metal2 with a fresnelconst texture (eta,
-  k) at roughness 0 (other conductors), glass (int_ior / ext_ior);
+- materials: matte (diffuse), mirror (a perfect-mirror conductor), glass (int_ior / ext_ior); other conductors
+  are refused (support.refusal: metal2 at roughness 0, with a fresnelconst texture of eta and k, is not
+  Mitsuba's smooth conductor; reports/peers.md, measured at commit 07b94e6);
 - camera: LuxCore's lookat camera with a field of view of 90 degrees and the screen window [-tx, tx, -ty, ty]
   of tan_half_fov, so that the image's extent is Mitsuba's whatever LuxCore's own fov convention;
 - output: the RGB film output saved as a linear float EXR.
@@ -31,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import pyluxcore
 
-from support import MISTAKES, mirror, one_sided, read_mesh, refusal
+from support import MISTAKES, one_sided, read_mesh, refusal
 
 # pyluxcore 2.11.2's RGB film output shows the image one row lower than its camera's screen window says (on the
 # Cornell box at 32 x 32: output row r + 1 equals Mitsuba's row r to within noise, 0.0009 mean absolute
@@ -134,12 +135,8 @@ def _material(name: str, m: dict, emitter: dict | None, mistake: str | None) -> 
     s = f"scene.materials.{surface}"
     if m["type"] == "diffuse":
         out = {f"{s}.type": "matte", f"{s}.kd": m["reflectance"]}
-    elif m["type"] == "conductor" and mirror(m):
+    elif m["type"] == "conductor":          # a perfect mirror (support.refusal refuses the others)
         out = {f"{s}.type": "mirror", f"{s}.kr": [1.0, 1.0, 1.0]}
-    elif m["type"] == "conductor":
-        out = {f"scene.textures.{name}_fresnel.type": "fresnelconst", f"scene.textures.{name}_fresnel.n": m["eta"],
-               f"scene.textures.{name}_fresnel.k": m["k"], f"{s}.type": "metal2", f"{s}.fresnel": f"{name}_fresnel",
-               f"{s}.uroughness": 0.0, f"{s}.vroughness": 0.0}
     else:
         out = {f"{s}.type": "glass", f"{s}.kr": [1.0, 1.0, 1.0], f"{s}.kt": [1.0, 1.0, 1.0],
                f"{s}.interiorior": m["int_ior"], f"{s}.exteriorior": m["ext_ior"]}
