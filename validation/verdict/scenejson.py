@@ -10,7 +10,8 @@ first, in one line. Written into a folder:
 Conventions (Mitsuba's, which the check compares against):
 - camera: `to_world` (4 x 4, row-major) maps camera space (looking down +z, up +y, x to the image's LEFT, as
   Mitsuba's perspective sensor) to world space; `tan_half_fov` [x, y] is the field of view already resolved
-  for the film's aspect (fov and fov_axis are also given);
+  for the film's aspect (fov and fov_axis are also given); an `orthographic` camera has to_world only (its
+  scale sizes the view, as Mitsuba's);
 - film: width, height, and the reconstruction filter (box radius 0.5 px, tent radius, gaussian stddev,
   cut off at 4 stddev and shifted to zero there);
 - integrator: Mitsuba's `path`; max_depth counts path vertices (1: emitters seen directly; -1: unbounded);
@@ -59,8 +60,10 @@ def write(scene_plan, folder: Path) -> Path:
     emitters = []
     for light in scene.lights:
         if isinstance(light, PointLight):
-            if light.varies:
-                raise TypeError(f"scene_json: no description for a projector or a textured spot ('{light.name}')")
+            if light.varies:         # described by its kind only: a renderer refuses it by its type
+                emitters.append({"type": "textured_point", "name": light.name, "position": _list(light.position),
+                                 "note": "a projector or a textured spot: its texture is not described"})
+                continue
             e = {"type": "point" if light.spot is None else "spot", "position": _list(light.position),
                  "intensity": _list(light.intensity)}
             if light.spot is not None:
@@ -76,12 +79,11 @@ def write(scene_plan, folder: Path) -> Path:
             raise TypeError(f"scene_json: no description for the emitter {type(light).__name__}")
         emitters.append(e | {"name": light.name})
     cam = scene.camera
-    if cam.projection != "perspective":
-        raise TypeError(f"scene_json: no description for the {cam.projection} sensor")
-    data = {"format": FORMAT, "source": str(scene_plan.path.resolve()),
-            "camera": {"type": "perspective", "to_world": _list(cam.to_world), "fov": cam.fov,
-                       "fov_axis": cam.fov_axis, "tan_half_fov": _list(cam.tan_half_fov()),
-                       "near_clip": cam.near_clip, "far_clip": cam.far_clip},
+    camera = {"type": cam.projection, "to_world": _list(cam.to_world), "near_clip": cam.near_clip,
+              "far_clip": cam.far_clip}
+    if cam.projection == "perspective":
+        camera |= {"fov": cam.fov, "fov_axis": cam.fov_axis, "tan_half_fov": _list(cam.tan_half_fov())}
+    data = {"format": FORMAT, "source": str(scene_plan.path.resolve()), "camera": camera,
             "film": {"width": scene_plan.width, "height": scene_plan.height,
                      "filter": _filter(cam.rfilter)},
             "integrator": {"type": "volpath" if scene.volumetric else "path", "max_depth": scene_plan.max_depth,

@@ -15,6 +15,10 @@ MISTAKES = {   # name: what the adapter then does wrong (reports/peers.md shows 
 def refusal(data: dict, peer: str) -> str | None:
     """The first thing in the scene `peer` ('cycles' or 'luxcore') cannot express as Mitsuba has it, in one
     line; None if it can express all of it."""
+    if data["camera"]["type"] != "perspective":
+        return f"the {data['camera']['type']} camera: the adapter converts the perspective camera only"
+    if data["integrator"]["type"] != "path":
+        return f"the {data['integrator']['type']} integrator: the adapter estimates Mitsuba's path only"
     depth = data["integrator"]["max_depth"]
     if depth == 1:
         return f"max_depth 1 (emitters seen directly, no lighting): {peer}'s bounce limits start at direct lighting"
