@@ -49,7 +49,8 @@ def unsupported(why: str):
 
 class Scene:
     def __init__(self, data: dict, folder: Path):
-        if data["camera"]["type"] != "perspective" or data["integrator"]["type"] != "path":
+        if data["camera"]["type"] != "perspective" or data["camera"]["aperture_radius"] > 0 \
+                or data["integrator"]["type"] != "path":
             unsupported(f"the {data['camera']['type']} camera or the {data['integrator']['type']} integrator")
         self.width, self.height = data["film"]["width"], data["film"]["height"]
         if data["film"]["filter"]["type"] != "box":

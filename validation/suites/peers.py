@@ -157,6 +157,7 @@ def main(argv: list[str] | None = None) -> int:
         if (scene.name, renderer.label, depth) in done:
             continue
         row = one(scene, renderer, depth, settings) | {"asked_depth": depth}
+        row["note"] = row.get("note", "").replace(f"{ROOT}/", "")        # paths relative to the repository
         print(json.dumps(row), flush=True)
         rows.append(row)
         store.write_text(json.dumps(rows, indent=1))

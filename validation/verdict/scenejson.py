@@ -80,7 +80,8 @@ def write(scene_plan, folder: Path) -> Path:
         emitters.append(e | {"name": light.name})
     cam = scene.camera
     camera = {"type": cam.projection, "to_world": _list(cam.to_world), "near_clip": cam.near_clip,
-              "far_clip": cam.far_clip}
+              "far_clip": cam.far_clip, "aperture_radius": cam.aperture_radius,   # > 0: Mitsuba's thinlens
+              "focus_distance": cam.focus_distance}
     if cam.projection == "perspective":
         camera |= {"fov": cam.fov, "fov_axis": cam.fov_axis, "tan_half_fov": _list(cam.tan_half_fov())}
     data = {"format": FORMAT, "source": str(scene_plan.path.resolve()), "camera": camera,

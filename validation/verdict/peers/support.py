@@ -17,6 +17,8 @@ def refusal(data: dict, peer: str) -> str | None:
     line; None if it can express all of it."""
     if data["camera"]["type"] != "perspective":
         return f"the {data['camera']['type']} camera: the adapter converts the perspective camera only"
+    if data["camera"]["aperture_radius"] > 0:
+        return "the thinlens camera (a lens aperture): the adapter converts the pinhole camera only"
     if data["integrator"]["type"] != "path":
         return f"the {data['integrator']['type']} integrator: the adapter estimates Mitsuba's path only"
     depth = data["integrator"]["max_depth"]
