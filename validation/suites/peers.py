@@ -81,7 +81,7 @@ def _cell(r: dict | None) -> str:
     if r["verdict"] == "skipped":
         return "skipped"
     if r["verdict"] == "error":
-        return f"error: {r['note']}"
+        return "refused by the check"
     stage = f", stage {r['stage']}" if r.get("stage", 1) > 1 else ""
     return (f"{r['verdict']} ({r['mean']:+.1%}; {r['rejected']}/{r['tests']}; ≤{r['detectable']:.1%}; "
             f"{r['seconds']:.0f} s{stage})")
@@ -101,10 +101,13 @@ def report(rows: list[dict], findings: str) -> str:
     for scene in scenes:
         for depth in sorted({r["max_depth"] for r in plain if r["scene"] == scene and r["max_depth"] is not None},
                             key=lambda d: (d < 0, d)):
-            cells = [_cell(next((r for r in plain if r["scene"] == scene and r["max_depth"] == depth
-                                 and r["renderer"] == label), None)) for label in names]
+            cells = [_cell(next((r for r in plain if r["scene"] == scene and r["renderer"] == label and (
+                r["max_depth"] == depth or r["max_depth"] is None and depth not in (2, 3))), None)) for label in names]
             if any(c not in ("", "skipped") for c in cells):
                 out.append(f"| {scene} | {depth} | " + " | ".join(cells) + " |")
+    refused = sorted({(r["scene"], r["note"]) for r in plain if r["verdict"] == "error"})
+    if refused:
+        out += ["", "Refused by the check itself (for every renderer): " + "; ".join(f"{s}: {n}" for s, n in refused)]
     out += ["", "### What the peers cannot express (skipped before any pass)", "", "| scene | reason |", "|---|---|"]
     for scene in scenes:
         reasons = sorted({r["note"] for r in plain if r["scene"] == scene and r["verdict"] == "skipped"})
