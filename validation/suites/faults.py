@@ -82,8 +82,8 @@ def _schlick_fresnel() -> list:
 def _wrong_light_density() -> list:
     correct = SceneGeometry.sample_light
 
-    def skewed(self, u_select, u1, u2):
-        return correct(self, u_select, dr.sqrt(u1), u2)   # density 2u, divided by the uniform density
+    def skewed(self, u_select, u1, u2, *rest):
+        return correct(self, u_select, dr.sqrt(u1), u2, *rest)   # density 2u, divided by the uniform density
 
     return [mock.patch.object(SceneGeometry, "sample_light", skewed)]
 
