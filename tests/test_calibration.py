@@ -98,7 +98,7 @@ def test_the_equivalence_section_replaces_its_predecessor_and_keeps_the_rest(tmp
 
     rows = [{"renderer": r, "scene": s, "alpha": ce.ALPHA, "bias": k, "n": 2, "equivalent": 1, "disagree": 1,
              "inconclusive": 0, "spent_equivalent": [4], "spent_disagree": [20], "spent_inconclusive": [],
-             "stages": [1, 2], "seconds_rendered": 60.0} for r in ce.RENDERERS for s in ce.SCENES for k in ce.BIASES]
+             "stages": [1, 2]} for r in ce.RENDERERS for s in ce.SCENES for k in ce.BIASES]
     monkeypatch.setattr(ce, "measure", lambda repetitions, **_: rows)
     monkeypatch.setattr(ce, "faults", lambda: [{"fault": "f", "spp": 256, "faulty": "disagree", "correct": "equivalent",
                                                 "faulty_mean": -0.05, "correct_detectable": [0.01] * 3}])

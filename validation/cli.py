@@ -422,7 +422,7 @@ def _run(args) -> int:
         if args.only in (None, "equivalence"):
             calibration_equivalence.update(args.output, args.equivalence_repetitions, args.mitsuba_data,
                                            args.render_test_repetitions)
-        if args.mitsuba_data is not None:
+        if args.mitsuba_data is not None and args.only in (None, "criterion"):
             mitsuba_criterion.update(args.output, args.mitsuba_data, args.criterion_repetitions)
         print(args.output)
         return 0

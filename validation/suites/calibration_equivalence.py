@@ -24,7 +24,6 @@ harder case for the t approximation).
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -67,7 +66,6 @@ class Repetition:
     def __init__(self, path: Path, render):
         self.path, self.render = path, render     # render(side, stage, j, seed) -> (K, rows, columns, 3)
         self.data = dict(np.load(path)) if path.exists() else {}
-        self.seconds = 0.0
 
     def passes(self, side: str, stage: int, m: int) -> np.ndarray:
         """Block means of PASSES passes at m spp: the atoms of m's binary digits, weighted by their spp."""
@@ -76,10 +74,8 @@ class Repetition:
     def atom(self, side: str, stage: int, j: int) -> np.ndarray:
         name = f"{side}-{stage}-{j}"
         if name not in self.data:
-            start = time.perf_counter()
             seed = 100 * stage + 20 * j + (50_000 if side == "ref" else 0)   # 20 apart: 16 passes' seeds each
             self.data[name] = self.render(side, stage, j, seed)
-            self.seconds += time.perf_counter() - start
             self.path.parent.mkdir(parents=True, exist_ok=True)
             tmp = self.path.with_suffix(".tmp.npz")
             np.savez(tmp, **self.data)
@@ -129,17 +125,15 @@ def measure(repetitions: int, cache: Path = CACHE, mitsuba_data: Path | None = N
     grid = cells(mitsuba_data)
     wanted = {c: render_test_repetitions or repetitions if c[1] == "arealight" else repetitions for c in grid}
     outcomes: dict[tuple, list[Outcome]] = {(c, k): [] for c in grid for k in BIASES}
-    seconds: dict[tuple, list[float]] = {c: [] for c in grid}
     for r in tqdm(range(max(wanted.values())), desc="equivalence repetitions", unit="repetition"):
         for renderer, scene in (c for c in grid if r < wanted[c]):
             rep = repetition(scene, renderer, r, cache, mitsuba_data)
             for k in BIASES:
                 outcomes[(renderer, scene), k].append(sequence(rep, ALPHA, MARGIN, 1 - k * MARGIN.image))
-            seconds[renderer, scene].append(rep.seconds)
     return [{"renderer": renderer, "scene": scene, "alpha": ALPHA, "bias": k, "n": len(o)}
             | {v: sum(x.verdict == v for x in o) for v in ("equivalent", "disagree", "inconclusive")}
             | {f"spent_{v}": [x.spent for x in o if x.verdict == v] for v in ("equivalent", "disagree", "inconclusive")}
-            | {"stages": [x.stage for x in o], "seconds_rendered": float(sum(seconds[renderer, scene]))}
+            | {"stages": [x.stage for x in o]}
             for ((renderer, scene), k), o in outcomes.items()]
 
 
@@ -192,7 +186,7 @@ def markdown(rows: list[dict]) -> list[str]:
         f"{protocol.SIZE} x {protocol.SIZE}, and (Mitsuba only: a strict null comparison) on "
         f"`arealight`, Mitsuba's render-test scene {RENDER_TEST} of mitsuba-renderer/mitsuba-data at its own "
         f"48 x 48, whose noisy image mean the pilot rarely decides; {protocol.PASSES} passes a side. "
-        "**A reduced grid**: a pilot of {PILOT} spp per pass and "
+        f"**A reduced grid**: a pilot of {PILOT} spp per pass and "
         f"at most {MAX_SPP}, {SCALE ** 2} times fewer than the check's defaults ({protocol.SPP}, up to "
         f"{protocol.MAX_SPP}), with margins {SCALE} times wider to match (standard errors are {SCALE} times larger); "
         "its passes are more skewed than the default's. The test side is scaled by 1 - k x margin (k = 0: a null "
@@ -215,16 +209,14 @@ def markdown(rows: list[dict]) -> list[str]:
                          f"{_rate(p['disagree'], p['n'])} | {p['inconclusive']}/{p['n']} | "
                          f"{_budget(p['spent_equivalent'])} | {_budget(p['spent_disagree'])} | "
                          f"{_budget(p['spent_inconclusive'])} |")
-    lines += ["", "Per scene: equivalent / disagree / inconclusive at each bias, and the minutes this machine "
-              "rendered for the cell (both sides, all repetitions):", "",
-              "| renderer under test | scene | n | " + " | ".join(f"k = {k:g}" for k in BIASES) + " | minutes |",
-              "|---|---|---:|" + "---|" * len(BIASES) + "---:|"]
+    lines += ["", "Per scene: equivalent / disagree / inconclusive at each bias:", "",
+              "| renderer under test | scene | n | " + " | ".join(f"k = {k:g}" for k in BIASES) + " |",
+              "|---|---|---:|" + "---|" * len(BIASES)]
     for renderer, scene in dict.fromkeys((r["renderer"], r["scene"]) for r in rows):
         cells = [r for r in rows if r["renderer"] == renderer and r["scene"] == scene]
         if cells:
             lines.append(f"| {renderer} | {scene} | {cells[0]['n']} | " + " | ".join(
-                f"{c['equivalent']} / {c['disagree']} / {c['inconclusive']}" for c in cells)
-                + f" | {cells[0]['seconds_rendered'] / 60:.1f} |")
+                f"{c['equivalent']} / {c['disagree']} / {c['inconclusive']}" for c in cells) + " |")
     return lines
 
 
@@ -240,7 +232,11 @@ def update(out: Path, repetitions: int, mitsuba_data: Path | None = None,
     rows = measure(repetitions, mitsuba_data=mitsuba_data, render_test_repetitions=render_test_repetitions)
     injected = faults()
     write_json(out.with_name("calibration_equivalence.json"), {"sequences": rows, "faults": injected})
-    return replace_section(out, SECTION, markdown(rows) + [""] + fault_table(injected),
+    command = (f"validate calibrate --only equivalence --equivalence-repetitions {repetitions}"
+               + (f" --mitsuba-data MITSUBA_DATA_DIR --render-test-repetitions {render_test_repetitions or repetitions}"
+                  if mitsuba_data else ""))
+    return replace_section(out, SECTION, markdown(rows) + ["", f"Generated by `{command}` (renders cached in "
+                                                                 ".cache/calibration)."] + [""] + fault_table(injected),
                            before="## Time per check")
 
 
