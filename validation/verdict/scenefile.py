@@ -139,7 +139,9 @@ def plan(path: str | Path, defines: dict[str, str] | None = None, size: int | No
         raise ScenePlanError(f"scene file '{path}' not found")
     defines = dict(defines or {})
     root = _parse(path)
-    declared = {d.get("name"): d.get("value", "") for d in root.findall("default")}
+    declared: dict[str, str] = {}
+    for d in root.findall("default"):       # the first declaration wins (an included file's come after), as in Mitsuba
+        declared.setdefault(d.get("name"), d.get("value", ""))
     unknown = sorted(set(defines) - set(declared) - set(SET_ANYWHERE))
     if unknown:
         raise ScenePlanError(f"{path}: -D {unknown[0]}: the scene declares no <default name=\"{unknown[0]}\"> "
