@@ -22,7 +22,8 @@ from .materials import MaterialTables
 from .media import MediaKernel
 from .sampling import square_to_uniform_sphere
 from .scene import Scene
-from .shapes import BVH_THRESHOLD, SETS, MeshSet, RectangleSet, ShapeSet, SphereSet
+from .shapes import BVH_THRESHOLD, SETS, MeshSet, Rectangle, RectangleSet, ShapeSet, SphereSet
+from .shapes.rectangle import EmitterTable
 from .shapes.bvh import BATCHED_WALKS
 from .shapes.planar import inset_point
 
@@ -57,7 +58,8 @@ class Surface:
 
 def uses_bvh(scene: Scene) -> bool:
     """Whether a SceneGeometry of the scene (its default bvh_threshold) puts primitives into a BVH."""
-    return MeshSet.uses_bvh(scene.triangle_count) or SphereSet.uses_bvh(len(scene.of_kind(SphereSet.kind)))
+    return (MeshSet.uses_bvh(scene.triangle_count) or SphereSet.uses_bvh(len(scene.of_kind(SphereSet.kind)))
+            or RectangleSet.uses_bvh(len(scene.of_kind(RectangleSet.kind))))
 
 
 def goes_bounce_by_bounce(has_bvh: bool) -> bool:
@@ -335,8 +337,11 @@ class SceneGeometry:
         intensity towards `ref` where it varies with direction (a spot's texture, a projector's image)."""
         n_lights = self.n_lights
         index = dr.minimum(UInt32(u_select * n_lights), n_lights - 1)
-        samples = []
-        for e in self.emitters:
+        samples, tabled, first = [], self._emitter_table, 0
+        if tabled is not None:                # the first emitters (rectangles and disks): light `index`'s row
+            samples.append(LightSample(*tabled.sample(index, u1, u2)))
+            first = tabled.count - 1          # samples[k] is light first + k's (for k > 0)
+        for e in self.emitters[first + len(samples):]:
             shapes, (lo, _) = self._set_of(e)
             y, n, prim = shapes.sample(e, lo, u1, u2, self)
             pdf_area = 1.0 / (n_lights * e.area) if e.area > 0 else np.inf    # no area: no power
@@ -349,10 +354,20 @@ class SceneGeometry:
             d = self.envmap.sample(u1, u2) if self.envmap is not None else square_to_uniform_sphere(u1, u2)
             samples.append(LightSample(d, -d, self.environment_radiance(d), Float(self.environment_pdf(d)),
                                        UInt32(NO_PRIM)))
-        out = None
-        for k, s in enumerate(samples):
-            out = s if out is None else select_sample(index == k, s, out)
+        out = samples[0] if samples else None
+        for k, s in enumerate(samples[1:], first + 1):
+            out = select_sample(index == k, s, out)
         return out
+
+    @cached_property
+    def _emitter_table(self) -> EmitterTable | None:
+        """The emitting rectangles and disks as a table (shapes.rectangle.EmitterTable) where there are
+        several: a sample then gathers the one it chose. They are the first emitters (primitive order)."""
+        lights = [e for e in self.emitters if isinstance(e, Rectangle)]
+        if len(lights) < 2:
+            return None
+        pdf = [1.0 / (self.n_lights * e.area) if e.area > 0 else np.inf for e in lights]
+        return EmitterTable(lights, [self.prim_range(e)[0] for e in lights], pdf)
 
     def describe(self) -> list[str]:
         """What the traced kernel contains, for `tracer info`."""
