@@ -183,7 +183,7 @@ def test_the_memory_section_sets_the_plans_estimate_against_the_measured_peak(tm
 def test_the_scenes_section_times_both_renderers_interleaved_and_labels_its_caps(tmp_path, monkeypatch):
     from validation.benchmark import scene_bench
 
-    chosen = scene_bench.select(scene_bench.candidates(None), ["mitsuba_scenes/cornell_box.xml"])
+    chosen = scene_bench.candidates(None, ["mitsuba_scenes/cornell_box.xml"])
     assert [n for n, _ in chosen] == ["mitsuba_scenes/cornell_box.xml"]
     order = []
     monkeypatch.setattr(scene_bench, "_timed", lambda command, env: (order.append(command[0]) or 1.0, ""))
@@ -212,3 +212,16 @@ def test_a_scene_is_rendered_by_both_command_lines():
     assert row["tracer"]["error"] == "" and row["Mitsuba"]["error"] == "", row
     assert (row["width"], row["height"]) == (13, 13)               # 256 x 256 scaled
     assert row["ratio"] > 0
+
+
+def test_the_generated_many_light_scene_cuts_the_light_into_tiles_of_the_same_power(tmp_path):
+    import numpy as np
+    import tracer
+    from validation.benchmark import scene_bench
+
+    one = tracer.load_scene(scene_bench.tiled_light_cornell_box(tmp_path, 1))
+    many = tracer.load_scene(scene_bench.tiled_light_cornell_box(tmp_path, 4))
+    original = tracer.load_scene(benchmark.ROOT / "mitsuba_scenes" / "cornell_box.xml")
+    assert len(many.emitters) == 16 and len(one.emitters) == 1
+    np.testing.assert_allclose(one.emitters[0].to_world, original.emitters[0].to_world, atol=1e-12)
+    assert np.isclose(sum(e.area for e in many.emitters), original.emitters[0].area)

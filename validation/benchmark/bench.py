@@ -279,23 +279,6 @@ def _split_light_room(folder: Path) -> Path:
                          "hexagon_room_two_lights")
 
 
-def tiled_light_cornell_box(folder: Path, n: int = 16) -> Path:
-    """The Cornell box with its light cut into n x n rectangles of the same radiance (the same image in
-    expectation): a scene of n^2 emitters."""
-    text = (ROOT / "mitsuba_scenes" / "cornell_box.xml").read_text()
-    start = text.index('<shape type="rectangle" id="light">')
-    end = text.index("</shape>", start) + len("</shape>")
-    tile = ('<shape type="rectangle"><transform name="to_world"><scale x="{sx}" y="{sy}"/>'
-            '<translate x="{x}" y="{y}"/><rotate x="1" angle="90"/><translate y="0.99"/></transform>'
-            '<bsdf type="diffuse"><rgb name="reflectance" value="0"/></bsdf>'
-            '<emitter type="area"><rgb name="radiance" value="18.387, 13.9873, 6.75357"/></emitter></shape>')
-    sx, sy = 0.23 / n, 0.19 / n
-    tiles = "".join(tile.format(sx=sx, sy=sy, x=-0.23 + sx * (2 * i + 1), y=-0.19 + sy * (2 * j + 1))
-                    for i in range(n) for j in range(n))
-    return write_variant(ROOT / "mitsuba_scenes" / "cornell_box.xml", text[:start] + tiles + text[end:], folder,
-                         f"cornell_box_{n}x{n}_lights")
-
-
 def cold_start(progress) -> dict:
     """The room's first render with an empty kernel cache; and a new mesh scene's first render with the
     cache holding only the kernels of another (a UV sphere of another size in the Cornell box, a BVH of the

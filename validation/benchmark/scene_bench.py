@@ -1,6 +1,7 @@
 """`validate bench --only scenes`: the tracer against Mitsuba on every scene the tracer renders, whole process.
 
-The scenes: the project's own (mitsuba_scenes/*.xml) and, given a copy of mitsuba-renderer/mitsuba-data,
+The scenes: the project's own (mitsuba_scenes/*.xml), the Cornell box with its light cut into 16 x 16
+rectangles (generated: a scene of many emitters), and, given a copy of mitsuba-renderer/mitsuba-data,
 every scene of its docs/scenes, tests/scenes and scenes folders (validation.coverage.FOLDERS) that the
 tracer loads. Each at its own resolution, spp and depth: `tracer render SCENE` against `mitsuba -m
 llvm_ad_rgb SCENE`, each run a fresh process timed from start to exit (loading, BVH, compilation,
@@ -24,25 +25,53 @@ import tempfile
 import time
 from pathlib import Path
 
+from ..verdict.scene_variants import write_variant
+
 ROOT = Path(__file__).resolve().parents[2]
 PROJECT = ROOT / "mitsuba_scenes"
 RUNS = 3                 # timed runs of each renderer per scene
 RENDERERS = ("tracer", "Mitsuba")
 
 
-def candidates(mitsuba_data: Path | None) -> list[tuple[str, Path]]:
-    """(name, path) of every scene the tracer loads: the project's, then mitsuba-data's (named relative to
-    its folder), in file order."""
+GENERATED = ROOT / ".cache" / "bench"    # where the generated scenes are written
+
+
+def generated() -> list[tuple[str, Path]]:
+    """The scenes the bench generates: the Cornell box with its light cut into 16 x 16 rectangles."""
+    path = tiled_light_cornell_box(GENERATED, 16)
+    return [(f"generated/{path.name}", path)]
+
+
+def tiled_light_cornell_box(folder: Path, n: int = 16) -> Path:
+    """The Cornell box with its light cut into n x n rectangles of the same radiance (the same image in
+    expectation): a scene of n^2 emitters."""
+    text = (PROJECT / "cornell_box.xml").read_text()
+    start = text.index('<shape type="rectangle" id="light">')
+    end = text.index("</shape>", start) + len("</shape>")
+    tile = ('<shape type="rectangle"><transform name="to_world"><scale x="{sx}" y="{sy}"/>'
+            '<translate x="{x}" y="{y}"/><rotate x="1" angle="90"/><translate y="0.99"/></transform>'
+            '<bsdf type="diffuse"><rgb name="reflectance" value="0"/></bsdf>'
+            '<emitter type="area"><rgb name="radiance" value="18.387, 13.9873, 6.75357"/></emitter></shape>')
+    sx, sy = 0.23 / n, 0.19 / n
+    tiles = "".join(tile.format(sx=sx, sy=sy, x=-0.23 + sx * (2 * i + 1), y=-0.19 + sy * (2 * j + 1))
+                    for i in range(n) for j in range(n))
+    return write_variant(PROJECT / "cornell_box.xml", text[:start] + tiles + text[end:], folder,
+                         f"cornell_box_{n}x{n}_lights")
+
+
+def candidates(mitsuba_data: Path | None, globs: list[str] | None = None) -> list[tuple[str, Path]]:
+    """(name, path) of every scene the tracer loads: the project's, the generated ones, then mitsuba-data's
+    (named relative to its folder), in file order; only those matching `globs` (select) are loaded."""
     import tracer
     from tracer.errors import UserError
 
     from ..suites.coverage import has_sensor, scene_files
 
-    paths = [(f"mitsuba_scenes/{p.name}", p) for p in sorted(PROJECT.glob("*.xml"))]
+    paths = [(f"mitsuba_scenes/{p.name}", p) for p in sorted(PROJECT.glob("*.xml"))] + generated()
     if mitsuba_data is not None:
         paths += [(str(p.relative_to(mitsuba_data)), p) for p in scene_files(mitsuba_data)]
     out = []
-    for name, path in paths:
+    for name, path in select(paths, globs):
         try:
             tracer.load_scene(path)
         except (tracer.SceneError, UserError):
@@ -125,7 +154,7 @@ def measure_scene(path: Path, scale: float, runs: int, progress) -> dict:
 def scenes(progress, mitsuba_data: Path | None = None, globs: list[str] | None = None, scale: float = 1.0,
            max_seconds: float | None = None, runs: int = RUNS) -> dict:
     """The section's results: per scene its settings, each renderer's runs and median, and their ratio."""
-    chosen = select(candidates(mitsuba_data), globs)
+    chosen = candidates(mitsuba_data, globs)
     start = time.perf_counter()
     rows, skipped = {}, []
     for i, (name, path) in enumerate(chosen):
@@ -150,7 +179,7 @@ def summary(section: dict) -> tuple[float, str, float] | None:
 def markdown(section: dict, plot: str | None) -> list[str]:
     """The section of reports/performance.md: how the run was capped, the table, the median and the worst."""
     rows, scale = section["rows"], section["scale"]
-    sources = "the project's scenes" + (" and every scene of `mitsuba-renderer/mitsuba-data` the tracer loads"
+    sources = "the project's scenes, the Cornell box with its light cut into 16 x 16 rectangles" + (" and every scene of `mitsuba-renderer/mitsuba-data` the tracer loads"
                                         if section["docs"] else " (mitsuba-data not given)")
     caps = []
     if section["globs"]:
