@@ -191,10 +191,11 @@ def markdown(section: dict, plot: str | None) -> list[str]:
         caps.append(f"stopped after {section['max_seconds']:g} s of wall time: {len(section['skipped'])} scenes "
                     "not measured (" + ", ".join(f"`{n}`" for n in section["skipped"]) + ")")
     lines = ["## Every scene: whole process, the tracer against Mitsuba", "",
-             f"{sources.capitalize()}, each at its own resolution, spp and max_depth: `tracer render SCENE` "
+             f"{sources[0].upper() + sources[1:]}, each at its own resolution, spp and max_depth: `tracer render SCENE` "
              "against `mitsuba -m llvm_ad_rgb SCENE`, each run a fresh process timed from start to exit (loading, "
              "BVH, kernel compilation, rendering, writing the EXR). Per scene a warm-up run of each (filling Dr.Jit's "
-             f"kernel caches and the tracer's on-disk BVH cache), then {section['runs']} timed runs of each, "
+             f"kernel caches and the tracer's on-disk BVH cache), then {section['runs']} timed "
+             f"run{'s' if section['runs'] > 1 else ''} of each, "
              "interleaved, the first renderer alternating; medians. Ratio: the tracer's median over Mitsuba's "
              "(below 1: the tracer is faster).", ""]
     if caps:
