@@ -66,6 +66,7 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--only", action="append", metavar="TEXT", help="only the tests whose <folder>/<scene>.xml "
                    "contains TEXT (repeatable)")
     t.add_argument("--no-mitsuba", action="store_true", help="do not put Mitsuba's own render through the protocol")
+    _suite_options(t)
     st = sub.add_parser("stability", help="write reports/stability.md: the numerical stability suite")
     st.add_argument("--output", "-o", type=Path, default=Path("reports/stability.md"))
     r = sub.add_parser("report", help="write reports/<scene>/README.md (resumes an interrupted sweep)")
@@ -447,8 +448,9 @@ def _run(args) -> int:
             raise ScenePlanError(f"'{args.mitsuba_data}' has no {SCENES} folder: expected a copy of "
                                  "mitsuba-renderer/mitsuba-data")
         output = args.output or (None if args.only else Path("reports/mitsuba_tests.md"))
-        return report(args.mitsuba_data, output, command_line(args.argv, args.mitsuba_data), args.only,
-                      not args.no_mitsuba)
+        with _session(args) as runner:
+            return report(args.mitsuba_data, output, command_line(args.argv, args.mitsuba_data), args.only,
+                          not args.no_mitsuba, runner=runner)
     if args.command == "stability":
         from .suites.stability import main as stability
 

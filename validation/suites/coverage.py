@@ -107,13 +107,14 @@ def survey_scene(path: Path, root: Path, check_scenes: bool = True,
     return out, rendered
 
 
-def survey(root: Path, check_scenes: bool = True, runner: Runner | None = None) -> list[SceneOutcome]:
-    """Every scene as a unit of one suite on `runner` (default: in this process); the references the checks
-    render are written to the cache here, as each scene's result arrives."""
+def survey(root: Path, check_scenes: bool = True, runner: Runner | None = None,
+           paths: list[Path] | None = None) -> list[SceneOutcome]:
+    """Every scene (or those of `paths`) as a unit of one suite on `runner` (default: in this process); the
+    references the checks render are written to the cache here, as each scene's result arrives."""
     from ..verdict.references import cache_folder, write_files
 
     cache = cache_folder()
-    paths = scene_files(root)
+    paths = scene_files(root) if paths is None else paths
 
     def cached(path: Path) -> dict[str, bytes]:
         return {f.name: f.read_bytes() for f in cache.glob(f"{glob.escape(path.stem)}-d*.npz")} if check_scenes else {}

@@ -30,14 +30,15 @@ licence.
 """
 from __future__ import annotations
 
+import glob
 import hashlib
 import io
 import json
 import math
-import sys
 import time
 import traceback
 from collections import Counter
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -48,6 +49,7 @@ from tracer.imageio import atomic_write, read_exr
 from ..reports.provenance import environment, relative_to, write_json, write_text
 from ..verdict.references import _digest
 from ..verdict.scenefile import files_digest
+from .runner import NONE, Runner, Unit, session
 
 SAMPLE_BUDGET = 2_000_000     # samples per image, spread over the reference's pixels
 SEED = 0
@@ -164,25 +166,33 @@ def _load(path: Path, key: str) -> Render | None:
     return Render(xyz, meta["seconds"])
 
 
-def _save(path: Path, key: str, render: Render) -> None:
+def _encode(key: str, render: Render) -> bytes:
     meta = json.dumps({"key": key, "seconds": render.seconds, "sha256": _digest({"xyz": render.xyz})})
     buf = io.BytesIO()
     np.savez(buf, meta=np.array(meta), xyz=render.xyz)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, lambda tmp: Path(tmp).write_bytes(buf.getvalue()))
+    return buf.getvalue()
 
 
-def cached(test: RenderTest, spp: int, renderer: str, identity: str, render, cache: Path) -> Render:
+def write_files(cache: Path, files: dict[str, bytes]) -> None:
+    """Renders a worker made (cache files by name), each written atomically unless the cache holds it."""
+    for name, data in files.items():
+        if not (cache / name).exists():
+            (cache / name).parent.mkdir(parents=True, exist_ok=True)
+            atomic_write(cache / name, lambda tmp: Path(tmp).write_bytes(data))
+
+
+def cached(test: RenderTest, spp: int, renderer: str, identity: str, render, files: dict[str, bytes]) -> Render:
     """`render()` (the XYZ image and its seconds), or the cached one of the same scene content, spp, seed
-    and renderer identity."""
+    and renderer identity; `files`: the cache's files by name (as the suite's process sent them), where a new
+    render is added."""
     text = json.dumps({"scene": files_digest(test.scene), "integrator": test.integrator, "spp": spp,
                        "seed": SEED, "renderer": identity}, sort_keys=True)
     key = hashlib.sha256(text.encode()).hexdigest()[:24]
-    path = cache / f"{renderer}-{test.scene.parent.name}-{test.scene.stem}-{key}.npz"
-    found = _load(path, key)
+    name = f"{renderer}-{test.scene.parent.name}-{test.scene.stem}-{key}.npz"
+    found = _load(io.BytesIO(files.get(name, b"")), key)
     if found is None:
         found = render()
-        _save(path, key, found)
+        files[name] = _encode(key, found)
     return found
 
 
@@ -265,10 +275,13 @@ def _one_line(e: BaseException) -> str:
     return lines[0] if lines else type(e).__name__
 
 
-def take(test: RenderTest, root: Path, run_mitsuba: bool = True, cache: Path = CACHE,
-         identity: str | None = None) -> Outcome:
+def take(test: RenderTest, root: Path, run_mitsuba: bool = True, files: dict[str, bytes] | None = None) -> Outcome:
+    """One test (a unit of the suite, on a worker): the tracer's verdict, and Mitsuba's where `run_mitsuba`;
+    `files`: the cached renders of the test by name, to which new renders are added."""
     import tracer
     from tracer.errors import UserError
+
+    files = {} if files is None else files
 
     ref, var = to_xyz(read_exr(test.reference)), to_xyz(read_exr(test.variance))
     pixels = ref.shape[0] * ref.shape[1]
@@ -281,7 +294,7 @@ def take(test: RenderTest, root: Path, run_mitsuba: bool = True, cache: Path = C
         out.tracer_refusals = len(str(e).splitlines())
     if not out.tracer:
         try:
-            r = cached(test, spp, "tracer", identity or tracer_identity(), lambda: tracer_render(test, spp), cache)
+            r = cached(test, spp, "tracer", tracer_identity(), lambda: tracer_render(test, spp), files)
             v = verdict(r.xyz, spp, ref, var)
             out.tracer, out.tracer_rejected, out.tracer_seconds = ("pass" if v.passed else "fail"), v.rejected, r.seconds
         except UserError as e:
@@ -293,7 +306,7 @@ def take(test: RenderTest, root: Path, run_mitsuba: bool = True, cache: Path = C
         from ..verdict.mitsuba_render import version
 
         try:
-            r = cached(test, spp, "mitsuba", version(), lambda: mitsuba_render(test, spp), cache)
+            r = cached(test, spp, "mitsuba", version(), lambda: mitsuba_render(test, spp), files)
             v = verdict(r.xyz, spp, ref, var)
             out.mitsuba, out.mitsuba_rejected, out.mitsuba_seconds = ("pass" if v.passed else "fail"), v.rejected, r.seconds
         except Exception as e:    # Mitsuba's refusal or failure is the datum
@@ -301,22 +314,34 @@ def take(test: RenderTest, root: Path, run_mitsuba: bool = True, cache: Path = C
     return out
 
 
-def run(root: Path, only: list[str] | None = None, run_mitsuba: bool = True,
-        cache: Path = CACHE) -> tuple[list[Outcome], list[Path]]:
-    """Every test under root (those whose name contains one of `only`), one line each on the terminal."""
-    from tqdm import tqdm
+def take_unit(test: RenderTest, root: Path, run_mitsuba: bool, files: dict[str, bytes]) -> tuple[Outcome, dict]:
+    """take() as a unit of the suite: its outcome and the renders it made (cache files by name)."""
+    before = set(files)
+    outcome = take(test, root, run_mitsuba, files)
+    return outcome, {k: v for k, v in files.items() if k not in before}
 
+
+def run(root: Path, only: list[str] | None = None, run_mitsuba: bool = True, cache: Path = CACHE,
+        runner: Runner | None = None) -> tuple[list[Outcome], list[Path]]:
+    """Every test under root (those whose name contains one of `only`) as a unit of one suite on `runner`
+    (default: in this process), one line each on the terminal as it arrives; its renders cached here."""
     tests, missing = render_tests(root)
     if only:
         tests = [t for t in tests if any(s in t.name for s in only)]
-    identity = tracer_identity()
-    outcomes = []
-    with tqdm(tests, desc="Mitsuba's render tests", unit="test", file=sys.stderr) as bar:
-        for test in bar:
-            bar.set_postfix_str(test.name)
-            outcomes.append(take(test, root, run_mitsuba, cache, identity))
-            bar.write(outcomes[-1].line(), file=sys.stdout)
-    return outcomes, missing
+
+    def cached_files(test: RenderTest) -> dict[str, bytes]:
+        return {f.name: f.read_bytes() for f in cache.glob(f"*-{glob.escape(test.scene.parent.name)}-"
+                                                              f"{glob.escape(test.scene.stem)}-*.npz")}
+
+    def on_result(unit: Unit, result) -> None:
+        write_files(cache, result[1])
+        print(result[0].line(), flush=True)
+
+    units = [Unit(f"{t.name}-{files_digest(t.scene)[:16]}-{'both' if run_mitsuba else 'tracer'}", take_unit,
+                  (t, root, run_mitsuba, cached_files(t))) for t in tests]
+    with (nullcontext(runner) if runner is not None else session(NONE)) as r:
+        results = r.run(units, "Mitsuba's render tests", on_result)
+    return [results[u.key][0] for u in units], missing
 
 
 # ---- the report -----------------------------------------------------------------------------------------------
@@ -379,10 +404,10 @@ def markdown(outcomes: list[Outcome], missing: list[str], command: str) -> str:
 
 
 def report(root: Path, out: Path | None, command: str, only: list[str] | None = None,
-           run_mitsuba: bool = True, cache: Path = CACHE) -> int:
+           run_mitsuba: bool = True, cache: Path = CACHE, runner: Runner | None = None) -> int:
     """Runs the tests, writes `out` (.md, and .json beside it) unless None; 0 when every test the tracer
     renders passes, 1 when one fails or its render failed."""
-    outcomes, missing = run(root, only, run_mitsuba, cache)
+    outcomes, missing = run(root, only, run_mitsuba, cache, runner)
     names = [f"{p.parent.name}/{p.name}" for p in missing]
     if out is not None:
         write_json(out.with_suffix(".json"), [asdict(o) for o in outcomes])

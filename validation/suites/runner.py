@@ -19,6 +19,7 @@ results are written as they arrive, each file atomically, so nothing is half-wri
 Mitsuba are imported by the workers only: this process imports neither Dr.Jit nor Mitsuba."""
 from __future__ import annotations
 
+import logging
 import os
 import sys
 import time
@@ -103,7 +104,7 @@ def session(scheduler: str = LOCAL, workers: int | None = None, quiet: bool = Fa
     if scheduler == LOCAL:
         n = workers or default_workers()
         with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                          silence_logs=40) as cluster, Client(cluster) as client:
+                          silence_logs=logging.CRITICAL) as cluster, Client(cluster) as client:
             client.register_plugin(DrJitThreads())
             yield Runner(client, quiet, f"a local cluster of {n} worker{'s' * (n > 1)} x {DRJIT_THREADS} Dr.Jit "
                                         f"thread ({cores()} cores)")
@@ -174,13 +175,14 @@ class Runner:
         results = {}
         try:
             with self._bar(len(units), desc) as bar:
-                for future, result in as_completed(futures, with_results=True):
-                    key = names[future.key]
-                    results[key] = result
-                    future.release()
-                    if on_result:
-                        on_result(by_key[key], result)
-                    bar.update()
+                for batch in as_completed(futures, with_results=True).batches():   # all that have arrived
+                    for future, result in batch:
+                        key = names[future.key]
+                        results[key] = result
+                        future.release()
+                        if on_result:
+                            on_result(by_key[key], result)
+                        bar.update()
         except BaseException:
             self.client.cancel(futures)          # Ctrl-C or a unit's error: nothing of this suite runs on
             raise
