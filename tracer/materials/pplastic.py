@@ -14,15 +14,14 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from ..jit import Array3f, Bool, Float, UInt32
-from ..sampling import square_to_cosine_hemisphere_concentric
+from ..jit import Array3f, Bool, Float
 from ..spectra import rgb
 from . import microfacet as mf
 from .bsdf import BSDF, DIFFUSE_REFLECTION, GLOSSY_REFLECTION, BSDFSample
-from .fresnel import reflect
 from .microfacet import Microfacet, pick
 from .reading import check_unit_interval, read_ior, read_microfacet
 from .roughdielectric import fresnel
+from .roughplastic import sample_layer
 
 NAME, FLAGS = "pplastic", GLOSSY_REFLECTION | DIFFUSE_REFLECTION
 PLUGINS = {"pplastic": ("diffuse_reflectance", "specular_reflectance", "eta", "int_ior", "ext_ior", "distribution",
@@ -84,14 +83,7 @@ def params(tables, surf, active: Bool) -> PPlasticParams:
 
 def sample(p: PPlasticParams, wi: Array3f, u1: Float, u2, active: Bool) -> tuple[BSDFSample, Array3f]:
     active = active & (wi.z > 0)
-    specular = u1 < p.specular_weight
-    m, _ = p.distr.sample(wi, u2)
-    wo = dr.select(specular, reflect(-wi, m), square_to_cosine_hemisphere_concentric(u2[0], u2[1]))
-    density = pdf(p, wi, wo, active)
-    active &= density > 0
-    weight = eval(p, wi, wo, active) / density
-    kind = dr.select(specular, UInt32(GLOSSY_REFLECTION), UInt32(DIFFUSE_REFLECTION))
-    return BSDFSample(wo, dr.select(active, density, 0.0), Float(1.0), kind), dr.select(active, weight, 0.0)
+    return sample_layer(p, wi, u1 < p.specular_weight, u2, active, pdf, eval)
 
 
 def eval(p: PPlasticParams, wi: Array3f, wo: Array3f, active: Bool) -> Array3f:

@@ -101,10 +101,15 @@ class PrincipledParams:
 
 
 def params(tables, surf, active: Bool) -> PrincipledParams:
-    r = tables.row(NAME, surf.material, active)
-    w = {name: r[k] for k, name in enumerate(FIELDS)}
-    for name, _ in WEIGHTS:
-        w[name] = tables.textured_value(name, surf, w[name], active)
+    return read_params(tables, surf, active, NAME, FIELDS, WEIGHTS)
+
+
+def read_params(tables, surf, active: Bool, name: str, fields, weights) -> PrincipledParams:
+    """A principled kind's table row per lane, each weight replaced by its texture where it has one."""
+    r = tables.row(name, surf.material, active)
+    w = {field: r[k] for k, field in enumerate(fields)}
+    for field, _ in weights:
+        w[field] = tables.textured_value(field, surf, w[field], active)
     return PrincipledParams(tables.reflectance(surf, active), w)
 
 

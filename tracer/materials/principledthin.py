@@ -24,7 +24,8 @@ from .bsdf import (BSDF, DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GLOSSY_REFLEC
                    BSDFSample)
 from .fresnel import reflect
 from .microfacet import mulsign
-from .principled import PrincipledParams, compatible, ggx, r0, schlick, schlick_weight, tint
+from .principled import (PrincipledParams, albedo, compatible, ggx, r0, read_params, schlick,  # noqa: F401 (albedo)
+                         schlick_weight, tint)
 from .reading import check_unit_interval
 from .roughdielectric import fresnel
 
@@ -63,15 +64,7 @@ def table(bsdfs: list[BSDF]) -> np.ndarray:
 
 
 def params(tables, surf, active: Bool) -> PrincipledParams:
-    r = tables.row(NAME, surf.material, active)
-    w = {name: r[k] for k, name in enumerate(FIELDS)}
-    for name, _ in WEIGHTS:
-        w[name] = tables.textured_value(name, surf, w[name], active)
-    return PrincipledParams(tables.reflectance(surf, active), w)
-
-
-def albedo(p: PrincipledParams) -> Array3f:
-    return p.base_color
+    return read_params(tables, surf, active, NAME, FIELDS, WEIGHTS)
 
 
 def _probabilities(w: dict) -> tuple[Float, Float, Float, Float]:

@@ -144,6 +144,12 @@ def sample(p: RoughPlasticParams, wi: Array3f, u1: Float, u2, active: Bool) -> t
     """(sample, weight = f cos theta_o / pdf): the coating with the probability above, else the base."""
     active = active & (wi.z > 0)
     specular = u1 < _specular_probability(p, _transmittance(p, wi.z, active))
+    return sample_layer(p, wi, specular, u2, active, pdf, eval)
+
+
+def sample_layer(p, wi: Array3f, specular: Bool, u2, active: Bool, pdf, eval) -> tuple[BSDFSample, Array3f]:
+    """A rough coating over a diffuse base, sampled: the coating's microfacet reflection where `specular`, the
+    base's cosine lobe elsewhere; pdf and weight (f cos / pdf) from the layer's own pdf and eval."""
     m, _ = p.distr.sample(wi, u2)
     wo = dr.select(specular, reflect(-wi, m), square_to_cosine_hemisphere_concentric(u2[0], u2[1]))
     density = pdf(p, wi, wo, active)
