@@ -22,31 +22,17 @@ The mapping (GUIDE, README "Peers"):
 """
 from __future__ import annotations
 
-import argparse
-import json
 import math
-import sys
 from pathlib import Path
 
 import bpy
 import numpy as np
 
-from support import MISTAKES, mirror, one_sided, read_mesh, refusal
+from support import mirror, one_sided, read_mesh, worker_arguments
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("scene", type=Path)
-    ap.add_argument("--spp", type=int, required=True)
-    ap.add_argument("--seeds", required=True)
-    ap.add_argument("--outputs", required=True)
-    ap.add_argument("--mistake", choices=sorted(MISTAKES))
-    args = ap.parse_args()
-    data = json.loads(args.scene.read_text())
-    why = refusal(data, "cycles")
-    if why:
-        print(f"cycles: {why}", file=sys.stderr)
-        sys.exit(77)
+    args, data = worker_arguments("cycles")
     scene = build(data, args.scene.parent, args.spp, args.mistake)
     for seed, output in zip(args.seeds.split(","), args.outputs.split(",")):
         scene.cycles.seed = int(seed)

@@ -21,8 +21,6 @@ The mapping (README "Peers"):
 """
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import os
 import sys
@@ -32,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import pyluxcore
 
-from support import MISTAKES, one_sided, read_mesh, refusal
+from support import one_sided, read_mesh, worker_arguments
 
 # pyluxcore 2.11.2's RGB film output shows the image one row lower than its camera's screen window says (on the
 # Cornell box at 32 x 32: output row r + 1 equals Mitsuba's row r to within noise, 0.0009 mean absolute
@@ -41,18 +39,7 @@ ROW_SHIFT = -1
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("scene", type=Path)
-    ap.add_argument("--spp", type=int, required=True)
-    ap.add_argument("--seeds", required=True)
-    ap.add_argument("--outputs", required=True)
-    ap.add_argument("--mistake", choices=sorted(MISTAKES))
-    args = ap.parse_args()
-    data = json.loads(args.scene.read_text())
-    why = refusal(data, "luxcore")
-    if why:
-        print(f"luxcore: {why}", file=sys.stderr)
-        sys.exit(77)
+    args, data = worker_arguments("luxcore")
     pyluxcore.Init(_quiet)
     scene = pyluxcore.Scene()
     scene.Parse(scene_properties(data, args.scene.parent, args.mistake))

@@ -3,6 +3,11 @@ peers report injects. Plain Python: imported by the check (the project's Python)
 which runs in the peers' own Python (README "Peers")."""
 from __future__ import annotations
 
+import argparse
+import json
+import sys
+from pathlib import Path
+
 MISTAKES = {   # name: what the adapter then does wrong (reports/peers.md shows each caught)
     "extra-bounce": "one bounce more than max_depth allows",
     "twosided-light": "area lights emit from both sides",
@@ -80,3 +85,21 @@ def read_mesh(path) -> tuple:
                if "nx" in v.data.dtype.names else None)
     faces = np.stack(ply["face"]["vertex_indices"]).astype(np.int64)
     return vertices, faces, normals
+
+
+def worker_arguments(peer: str) -> tuple[argparse.Namespace, dict]:
+    """A peer worker's command line (scene.json, --spp, --seeds and --outputs as comma lists, --mistake) and its
+    scene; exits 77 (the check's "unsupported") with the refusal on stderr where `peer` cannot express it."""
+    ap = argparse.ArgumentParser()
+    ap.add_argument("scene", type=Path)
+    ap.add_argument("--spp", type=int, required=True)
+    ap.add_argument("--seeds", required=True)
+    ap.add_argument("--outputs", required=True)
+    ap.add_argument("--mistake", choices=sorted(MISTAKES))
+    args = ap.parse_args()
+    data = json.loads(args.scene.read_text())
+    why = refusal(data, peer)
+    if why:
+        print(f"{peer}: {why}", file=sys.stderr)
+        sys.exit(77)
+    return args, data
