@@ -76,7 +76,7 @@ def test_agrees_with_mitsuba():
 @pytest.mark.slow
 @pytest.mark.parametrize("name, fault", [
     # the map's green channel read the other way (a DirectX normal map taken for an OpenGL one)
-    ("tilted_frame", lambda honest: lambda m: honest(Array3f(m.x, -m.y, m.z))),
+    ("tilted_frame", lambda honest: lambda m, *rest: honest(Array3f(m.x, -m.y, m.z), *rest)),
     # the shadowing term left out
     ("shadowing", lambda honest: lambda n, cos: dr.full(type(cos), 1.0, dr.width(cos))),
 ])
