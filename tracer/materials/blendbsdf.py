@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from .bsdf import BSDF
+from .reading import check_fraction
 
 PLUGINS = {"blendbsdf": ("weight",)}
 
@@ -15,8 +16,7 @@ def from_xml(ctx, props, node) -> BSDF:
     props.finish()
     if len(inner) != 2:
         raise ctx.error(node, "blendbsdf blends two bsdfs")
-    if not 0.0 <= weight <= 1.0:
-        raise ctx.error(props.values.get("weight", node), f"weight must lie in [0, 1], got {weight}")
+    check_fraction(ctx, props, node, "weight", weight)
     first, second = (ctx.bsdf(b) for b in inner)
     for child, part in zip(inner, (first, second)):
         if part.blend is not None or part.masked or part.normalmap is not None or part.texture_of("bumpmap"):

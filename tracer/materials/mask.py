@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from .bsdf import BSDF
+from .reading import check_fraction
 
 PLUGINS = {"mask": ("opacity",)}
 
@@ -17,8 +18,7 @@ def from_xml(ctx, props, node) -> BSDF:
     props.finish()
     if len(inner) != 1:
         raise ctx.error(node, "mask wraps one bsdf")
-    if not 0.0 <= opacity <= 1.0:
-        raise ctx.error(props.values.get("opacity", node), f"opacity must lie in [0, 1], got {opacity}")
+    check_fraction(ctx, props, node, "opacity", opacity)
     nested = ctx.bsdf(inner[0])
     if nested.masked and (texture is not None or nested.texture_of("opacity") is not None):
         raise ctx.error(inner[0], "a mask with a textured opacity inside or around another mask is not supported; "

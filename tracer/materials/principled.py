@@ -50,12 +50,7 @@ PLUGINS = {NAME: ("base_color", *(n for n, _ in WEIGHTS), "eta", "specular", *(n
 
 def from_xml(ctx, props, node) -> BSDF:
     base = props.colour("base_color", 0.5, textured=True)
-    weights, textures = {}, []
-    for name, default in WEIGHTS:
-        weights[name], texture = props.scalar(name, default)
-        if texture is not None:
-            textures.append((name, texture))
-    rates = {name: props.scalar(name, d, textured=False)[0] for name, d in RATES}
+    weights, textures, rates = read_weights(props, WEIGHTS, RATES)
     transmits = weights["spec_trans"] != 0 or any(n == "spec_trans" for n, _ in textures)
     eta = read_eta(ctx, props, node, transmits)
     props.finish()
@@ -64,6 +59,17 @@ def from_xml(ctx, props, node) -> BSDF:
     colour = rgb(base) if texture is None else (0.5, 0.5, 0.5)
     extra = tuple(weights.items()) + tuple(rates.items()) + (("eta", eta), ("transmits", float(transmits)))
     return BSDF(NAME, colour, texture=texture, textures=tuple(textures), extra=extra)
+
+
+def read_weights(props, weights, rates) -> tuple[dict, list, dict]:
+    """A principled kind's float parameters: each weight's value and its texture (name, texture) where it has
+    one, and the sampling rates (never textured)."""
+    values, textures = {}, []
+    for name, default in weights:
+        values[name], texture = props.scalar(name, default)
+        if texture is not None:
+            textures.append((name, texture))
+    return values, textures, {name: props.scalar(name, d, textured=False)[0] for name, d in rates}
 
 
 def read_eta(ctx, props, node, transmits: bool) -> float:

@@ -24,8 +24,8 @@ from .bsdf import (BSDF, DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GLOSSY_REFLEC
                    BSDFSample)
 from .fresnel import reflect
 from .microfacet import mulsign
-from .principled import (PrincipledParams, albedo, compatible, ggx, r0, read_params, schlick,  # noqa: F401 (albedo)
-                         schlick_weight, tint)
+from .principled import (PrincipledParams, albedo, compatible, ggx, r0, read_params, read_weights,  # noqa: F401 (albedo)
+                         schlick, schlick_weight, tint)
 from .reading import check_unit_interval
 from .roughdielectric import fresnel
 
@@ -41,12 +41,7 @@ FIELDS = [name for name, _ in WEIGHTS] + [name for name, _ in RATES]
 
 def from_xml(ctx, props, node) -> BSDF:
     base = props.colour("base_color", 0.5, textured=True)
-    weights, textures = {}, []
-    for name, default in WEIGHTS:
-        weights[name], texture = props.scalar(name, default)
-        if texture is not None:
-            textures.append((name, texture))
-    rates = {name: props.scalar(name, d, textured=False)[0] for name, d in RATES}
+    weights, textures, rates = read_weights(props, WEIGHTS, RATES)
     props.finish()
     check_unit_interval(ctx, node, "base_color", base)
     texture = None if isinstance(base, np.ndarray) else base

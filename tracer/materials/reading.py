@@ -28,6 +28,12 @@ def check_unit_interval(ctx, node, name: str, value) -> None:
         raise ctx.error(node, f"{name} must lie in [0, 1], got {rgb(value)}")
 
 
+def check_fraction(ctx, props, node, name: str, value: float) -> None:
+    """Refuses a float weight (mask's opacity, blendbsdf's weight) outside [0, 1], at its own line."""
+    if not 0.0 <= value <= 1.0:
+        raise ctx.error(props.values.get(name, node), f"{name} must lie in [0, 1], got {value}")
+
+
 DISTRIBUTIONS = ("beckmann", "ggx")
 
 
