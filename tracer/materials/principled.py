@@ -93,10 +93,15 @@ FIELDS = [name for name, _ in WEIGHTS] + [name for name, _ in RATES] + ["eta", "
 
 
 def table(bsdfs: list[BSDF]) -> np.ndarray:
-    rows = np.zeros((len(bsdfs), len(FIELDS)))
+    return table_of(bsdfs, NAME, FIELDS)
+
+
+def table_of(bsdfs: list[BSDF], name: str, fields) -> np.ndarray:
+    """A principled kind's table: one row per material, its fields in table order (zeros for other kinds)."""
+    rows = np.zeros((len(bsdfs), len(fields)))
     for i, b in enumerate(bsdfs):
-        if b.kind == NAME:
-            rows[i] = [dict(b.extra)[name] for name in FIELDS]
+        if b.kind == name:
+            rows[i] = [dict(b.extra)[field] for field in fields]
     return rows
 
 

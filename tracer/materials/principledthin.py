@@ -25,7 +25,7 @@ from .bsdf import (BSDF, DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GLOSSY_REFLEC
 from .fresnel import reflect
 from .microfacet import mulsign
 from .principled import (PrincipledParams, albedo, compatible, ggx, r0, read_params, read_weights,  # noqa: F401 (albedo)
-                         schlick, schlick_weight, tint)
+                         schlick, schlick_weight, table_of, tint)
 from .reading import check_unit_interval
 from .roughdielectric import fresnel
 
@@ -51,11 +51,7 @@ def from_xml(ctx, props, node) -> BSDF:
 
 
 def table(bsdfs: list[BSDF]) -> np.ndarray:
-    rows = np.zeros((len(bsdfs), len(FIELDS)))
-    for i, b in enumerate(bsdfs):
-        if b.kind == NAME:
-            rows[i] = [dict(b.extra)[name] for name in FIELDS]
-    return rows
+    return table_of(bsdfs, NAME, FIELDS)
 
 
 def params(tables, surf, active: Bool) -> PrincipledParams:
