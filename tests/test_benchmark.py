@@ -225,3 +225,53 @@ def test_the_generated_many_light_scene_cuts_the_light_into_tiles_of_the_same_po
     assert len(many.emitters) == 16 and len(one.emitters) == 1
     np.testing.assert_allclose(one.emitters[0].to_world, original.emitters[0].to_world, atol=1e-12)
     assert np.isclose(sum(e.area for e in many.emitters), original.emitters[0].area)
+
+
+def test_measure_runs_another_checkouts_tracer(tmp_path):
+    import shutil
+
+    other = tmp_path / "other"
+    shutil.copytree(benchmark.ROOT / "tracer", other / "tracer", ignore=shutil.ignore_patterns("__pycache__"))
+    job = benchmark._tracer("path", size=8, spp=1, max_depth=2) | {"repeats": 1}
+    assert benchmark.measure(job, tracer_root=other)["tracer_package"] == str((other / "tracer").resolve())
+    assert benchmark.measure(job)["tracer_package"] == str(benchmark.ROOT / "tracer")
+
+
+def test_against_interleaves_two_checkouts_and_refuses_a_folder_without_the_tracer(tmp_path, monkeypatch):
+    import pytest
+    from tracer.errors import UserError
+    from validation.benchmark import ab
+
+    with pytest.raises(UserError, match="no tracer package"):
+        ab.against(lambda _: None, tmp_path, 1)
+    (tmp_path / "tracer").mkdir()
+    (tmp_path / "tracer" / "__init__.py").write_text("")
+    calls = []
+
+    def fake(job, tracer_root=None):
+        calls.append("other" if tracer_root else "this")
+        package = (tracer_root.resolve() if tracer_root else benchmark.ROOT) / "tracer"
+        seconds = [2.0] * 3 if tracer_root else [1.0] * 3   # this checkout twice as fast
+        return {"seconds": seconds, "cpu_seconds": [s * 1.5 for s in seconds], "rays": 10,
+                "tracer_package": str(package)}
+    monkeypatch.setattr(ab, "measure", fake)
+    section = ab.against(lambda _: None, tmp_path, 2)
+    assert calls == ["this", "other", "other", "this"] * len(ab.JOBS)   # the first alternates round by round
+    for row in section["rows"].values():
+        assert row["wall"]["ratio"] == 0.5 and row["cpu"]["ratio"] == 0.5 and len(row["seconds"]["this"]) == 6
+    text = "\n".join(ab.markdown(section))
+    assert "| hexagon_room | wall |" in text and "**0.500**" in text
+    monkeypatch.setattr(ab, "measure", lambda job, tracer_root=None: fake(job, None))   # the wrong tracer ran
+    with pytest.raises(RuntimeError, match="imported"):
+        ab.against(lambda _: None, tmp_path, 1)
+
+
+def test_the_rooms_phases_add_up_to_its_render():
+    from validation.benchmark.room_profile import phases
+
+    profile = {"variants": {"full": {"cpu": [1.0, 0.9], "rays": 100}, "unblocked": {"cpu": [0.8], "rays": 100},
+                            "no_nee": {"cpu": [0.6], "rays": 60}, "camera": {"cpu": [0.2], "rays": 20}},
+               "ceiling": {"rays_per_cpu_second": 400.0}}
+    t = phases(profile)
+    assert abs(sum(x for name, x in t.items() if name != "full") - 0.9) < 1e-12
+    assert t["shadow-ray queries"] == 0.9 - 0.8 and t["closest-hit queries"] == 60 / 400

@@ -99,6 +99,12 @@ def _parser() -> argparse.ArgumentParser:
                    "of wall time (the report lists those left out)")
     b.add_argument("--runs", type=int, default=3, help="scenes section: timed runs of each renderer per scene "
                    "(default 3, after a warm-up run of each)")
+    b.add_argument("--against", type=Path, metavar="TREE", help="section 'against' (run only when named, or when "
+                   "this is given without --only): a checkout of another commit (git worktree add --detach TREE "
+                   "COMMIT); the room's and the Cornell box's path renders by this checkout's tracer and TREE's, "
+                   "A/B interleaved")
+    b.add_argument("--rounds", type=int, default=5, help="section 'against': processes per checkout and scene, "
+                   "the one that goes first alternating (default 5)")
     q = sub.add_parser("faults", help="write reports/faults.md: which injected faults the test catches at which spp")
     q.add_argument("--output", "-o", type=Path, default=Path("reports/faults.md"))
     n = sub.add_parser("snapshot", help="render every project scene small with one Dr.Jit thread into DIR (.npy); "
@@ -462,11 +468,14 @@ def _run(args) -> int:
         if only and any(Path(x).is_dir() for x in only):
             data = data or next(Path(x) for x in only if Path(x).is_dir())
             only = [x for x in only if not Path(x).is_dir()]
-        if args.scale <= 0 or args.runs < 1:
-            print("validate bench: --scale must be positive and --runs at least 1", file=sys.stderr)
+        if args.scale <= 0 or args.runs < 1 or args.rounds < 1:
+            print("validate bench: --scale must be positive, --runs and --rounds at least 1", file=sys.stderr)
             return 2
+        if args.against and not only:
+            only = ["against"]
         options = {"globs": args.scenes, "scale": args.scale, "max_seconds": args.max_seconds, "runs": args.runs}
-        print(run(args.output, only, data, options))
+        against = (args.against, args.rounds) if args.against else None
+        print(run(args.output, only, data, options, against))
         return 0
     if args.command == "snapshot":
         return _snapshot(args)

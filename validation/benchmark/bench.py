@@ -79,18 +79,22 @@ def _child(job: dict) -> dict:
         geometry = SceneGeometry(scene, **options)   # builds the BVH, reused by every render below
         setup = time.perf_counter() - start
         split = {"load_seconds": loaded - start, "geometry_seconds": setup - (loaded - start),
-                 "triangles": geometry.meshes.count}
+                 "triangles": geometry.meshes.count, "tracer_package": str(Path(tracer.__file__).resolve().parent)}
 
         def run(seed):
             r = render(scene, job["estimator"], seed=seed, geometry=geometry, **job["options"])
             return r.image, r.render_seconds, r.compile_seconds, r.rays
 
-    first = run(0)
-    runs = [run(seed) for seed in range(1, job.get("repeats", REPEATS) + 1)]
+    def run_timed(seed):   # and the process's CPU seconds (every thread's): steadier than wall time under load
+        start = time.process_time()
+        return *run(seed), time.process_time() - start
+
+    first = run_timed(0)
+    runs = [run_timed(seed) for seed in range(1, job.get("repeats", REPEATS) + 1)]
     import resource
 
     out = {"setup_seconds": setup, "first_seconds": first[1] + first[2], "first_compile": first[2],
-           "seconds": [r[1] for r in runs],
+           "seconds": [r[1] for r in runs], "cpu_seconds": [r[4] for r in runs],
            "rays": runs[-1][3], "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
     out.update(split)
     if job.get("profile"):
@@ -139,9 +143,10 @@ def _setup_from_disk_cache(job: dict) -> float:
                 os.environ[bvh_cache.ENV] = before
 
 
-def measure(job: dict, cold: bool = False, home: str | None = None) -> dict:
+def measure(job: dict, cold: bool = False, home: str | None = None, tracer_root: Path | None = None) -> dict:
     """Runs `job` in a child process; adds the median seconds and the child's peak RSS in MB. `cold`: with
-    an empty Dr.Jit kernel cache (a new HOME), or `home`: with that HOME's."""
+    an empty Dr.Jit kernel cache (a new HOME), or `home`: with that HOME's. `tracer_root`: another checkout
+    whose `tracer` package the child imports (this one's benchmark code runs it: validation.benchmark.ab)."""
     env = dict(os.environ)
     if job.get("renderer") == "tracer":
         env.setdefault("OPENBLAS_NUM_THREADS", "1")   # as the tracer command runs (tracer.cli.main)
@@ -149,11 +154,17 @@ def measure(job: dict, cold: bool = False, home: str | None = None) -> dict:
     tmp = tempfile.TemporaryDirectory() if cold else None
     if tmp or home:
         env["HOME"] = tmp.name if tmp else home
+    cwd = tempfile.TemporaryDirectory() if tracer_root else None
+    if cwd:   # `python -m` puts its folder first on sys.path: there `tracer` is the other checkout's
+        (Path(cwd.name) / "tracer").symlink_to(Path(tracer_root).resolve() / "tracer")
+        (Path(cwd.name) / "validation").symlink_to(ROOT / "validation")
     proc = subprocess.Popen([sys.executable, "-m", "validation.benchmark.bench", "--child", json.dumps(job)],
-                            cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            cwd=cwd.name if cwd else ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
     out, err = proc.communicate()
-    if tmp:
-        tmp.cleanup()
+    for folder in (tmp, cwd):
+        if folder:
+            folder.cleanup()
     if proc.returncode != 0:
         raise RuntimeError(f"benchmark job failed: {err.strip().splitlines()[-1] if err.strip() else proc.returncode}")
     result = json.loads(out.strip().splitlines()[-1])
@@ -245,7 +256,11 @@ def ceiling(progress) -> dict:
         "    ts.append(time.perf_counter() - t)\n"
         "print(n / min(ts[1:]))\n")   # a ceiling: the least disturbed of 8 timed launches
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
-    return {"rays_per_second": float(out.stdout.strip().splitlines()[-1])}
+    progress("the room's path render by phase, against the ceiling (validation/benchmark/room_profile.py)")
+    profile = subprocess.run([sys.executable, "-m", "validation.benchmark.room_profile", str(ROOM)], cwd=ROOT,
+                             capture_output=True, text=True, check=True)
+    return {"rays_per_second": float(out.stdout.strip().splitlines()[-1]),
+            "room_path": json.loads(profile.stdout.strip().splitlines()[-1])}
 
 
 def specialisation(progress) -> dict:
@@ -514,10 +529,24 @@ if __name__ == "__main__" and len(sys.argv) > 2 and sys.argv[1] == "--child":
     main_child(sys.argv[2])
 
 
-def sections(mitsuba_data: Path | None = None, scene_options: dict | None = None) -> dict:
+OPTIONAL = ("against",)   # sections run only when named: they need an argument (--against)
+
+
+def sections(mitsuba_data: Path | None = None, scene_options: dict | None = None,
+             against: tuple[Path, int] | None = None) -> dict:
     """The bench's sections by name, in the order they run (`mitsuba_data`: a copy of mitsuba-data, whose
     docs scenes the memory section measures too and whose scenes the scenes section times; `scene_options`:
-    the scenes section's caps, as validation.scene_bench.scenes takes them)."""
+    the scenes section's caps, as validation.scene_bench.scenes takes them; `against`: another checkout and
+    the rounds to time it in, validation.benchmark.ab)."""
+    from .ab import against as ab
+
+    def other(out, progress):
+        if against is None:
+            from tracer.errors import UserError
+
+            raise UserError("validate bench: the section 'against' needs --against TREE")
+        return ab(progress, *against)
+
     return {"side_by_side": lambda out, progress: side_by_side(out, progress),
             "tables": lambda out, progress: report_tables(progress),
             "ceiling": lambda out, progress: ceiling(progress),
@@ -526,11 +555,12 @@ def sections(mitsuba_data: Path | None = None, scene_options: dict | None = None
             "scaling": lambda out, progress: scaling(progress),
             "meshes": lambda out, progress: meshes(progress),
             "memory": lambda out, progress: memory(progress, mitsuba_data),
-            "scenes": lambda out, progress: scene_section(progress, mitsuba_data, **(scene_options or {}))}
+            "scenes": lambda out, progress: scene_section(progress, mitsuba_data, **(scene_options or {})),
+            "against": other}
 
 
 def run(out: Path, only: list[str] | None = None, mitsuba_data: Path | None = None,
-        scene_options: dict | None = None) -> str:
+        scene_options: dict | None = None, against: tuple[Path, int] | None = None) -> str:
     """Every measurement (or only the sections named, the others kept from the previous run's
     performance.json), then reports/performance.md and its plot; returns the markdown."""
     from datetime import datetime, timezone
@@ -546,14 +576,15 @@ def run(out: Path, only: list[str] | None = None, mitsuba_data: Path | None = No
     unknown = set(only or ()) - set(sections())
     if unknown:
         raise UserError(f"unknown bench sections {sorted(unknown)}; the sections are {list(sections())}")
-    missing = [name for name in sections() if name not in results and name not in (only or ())]
+    missing = [name for name in sections() if name not in results and name not in (only or ())
+               and name not in OPTIONAL]
     if only and missing:
         raise UserError(f"{previous} has no {missing}: run those sections too")
     today = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     results.setdefault("when", {})
     results.setdefault("load", {})
-    for name, section in sections(mitsuba_data, scene_options).items():
-        if not only or name in only:
+    for name, section in sections(mitsuba_data, scene_options, against).items():
+        if (not only and name not in OPTIONAL) or name in (only or ()):
             before = os.getloadavg()[0]
             results[name] = section(out, progress)
             results["when"][name] = today
@@ -586,10 +617,11 @@ def markdown(r: dict) -> str:
     sbs, tables, scaling = r["side_by_side"], r["tables"], r["scaling"]
     ours, theirs = sbs["tracer path"], sbs["Mitsuba path"]
     when = r.get("when", {})
-    dates = sorted(set(when.get(name, "an earlier run") for name in sections()))
+    measured = [name for name in sections() if name not in OPTIONAL or name in r]
+    dates = sorted(set(when.get(name, "an earlier run") for name in measured))
     provenance = (f"all numbers from one run, {dates[0]}" if len(dates) == 1 else
                   "sections from separate runs: " + "; ".join(f"{name} {when.get(name, 'an earlier run')}"
-                                                               for name in sections()))
+                                                               for name in measured))
     load = r.get("load", {})
     lines = [
         "# Performance: the tracer and Mitsuba side by side",
@@ -645,18 +677,24 @@ def markdown(r: dict) -> str:
             f"compiled to bytecode): **{whole['median']:.2f} s**, median of {len(whole['seconds'])} runs "
             f"({min(whole['seconds']):.2f}–{max(whole['seconds']):.2f} s).",
         ]
+    same_run = when.get("ceiling") == when.get("tables")
+    report_rate = (f"The report estimator at N = 16 reaches {n16['rays'] / n16['median'] / 1e6:.0f} M rays/s "
+                   f"({n16['rays'] / n16['median'] / ceil:.2f} of it; the ceiling is the fastest of 8 launches, the "
+                   "estimator a median of 3 renders). " if same_run else
+                   "(The report estimator's rays per second, in the tables above, come from another run, under "
+                   "another load: not compared.) ")
     lines += [
         "",
         "## Rays per second against the brute-force ceiling",
         "",
         f"The room's closest-hit kernel alone (random rays, no shading, brute force over its 21 primitives) traces "
-        f"**{ceil / 1e6:.0f} M rays/s**. The report estimator at N = 16 reaches {n16['rays'] / n16['median'] / 1e6:.0f} M rays/s "
-        f"({n16['rays'] / n16['median'] / ceil:.2f} of it; the ceiling is the fastest of 8 launches, the estimator a "
-        "median of 3 renders). Most of the estimator's rays are shadow rays, which test only the primitives that can "
+        f"**{ceil / 1e6:.0f} M rays/s**. " + report_rate +
+        "Most of the report estimator's rays are shadow rays, which test only the primitives that can "
         "block them (the room's walls are left out), so its rate is not bounded by this one; beyond its ray queries, "
         "its time goes to light sampling and BRDF evaluation in the shadow-ray kernel, the compaction of each level's "
         "rays (`dr.compress`) and the gathers that build the next level.",
         "",
+        *room_profile_markdown(r["ceiling"].get("room_path")),
         "## A kernel traced from the scene",
         "",
         "The Cornell box holds only diffuse surfaces: its kernel has no mirror or dielectric code. Forcing both in "
@@ -705,7 +743,37 @@ def markdown(r: dict) -> str:
     lines += mesh_markdown(r["meshes"])
     lines += memory_markdown(r["memory"])
     lines += scene_markdown(r["scenes"], "performance_scenes.png" if "ratio" in json.dumps(r["scenes"]) else None)
+    from .ab import markdown as against_markdown
+
+    lines += against_markdown(r.get("against"))
     return "\n".join(lines)
+
+
+def room_profile_markdown(p: dict | None) -> list[str]:
+    """The room's path render against the ceiling, by phase (validation/benchmark/room_profile.py)."""
+    if not p:
+        return []
+    from .room_profile import phases
+
+    s, v, c = p["settings"], p["variants"], p["ceiling"]
+    full = v["full"]
+    wall_rate, cpu_rate = full["rays"] / min(full["wall"]), full["rays"] / min(full["cpu"])
+    t = phases(p)
+    lines = [f"The path tracer on the room ({s['size']} x {s['size']}, {s['spp']} spp, max_depth {s['max_depth']}; "
+             f"{full['rays'] / 1e6:.1f} M rays: {v['no_nee']['rays'] / 1e6:.1f} M closest hits, the rest shadow rays), "
+             "in the process that measured the ceiling again (the fastest of its renders and of its launches): "
+             f"**{wall_rate / c['rays_per_second']:.2f}** of the ceiling in wall time ({wall_rate / 1e6:.0f} M "
+             f"against {c['rays_per_second'] / 1e6:.0f} M rays/s), **{cpu_rate / c['rays_per_cpu_second']:.2f}** in "
+             f"CPU time ({cpu_rate / 1e6:.1f} M against {c['rays_per_cpu_second'] / 1e6:.1f} M rays per CPU second). "
+             "Its CPU seconds by phase, measured by ablation (each variant rendered in turn, the fastest of "
+             f"{s['rounds']} renders; `validation/benchmark/room_profile.py` says how each phase is derived):", "",
+             "| phase | CPU [s] | share |", "|---|---:|---:|"]
+    lines += [f"| {name} | {x:.3f} | {x / t['full']:.0%} |" for name, x in t.items() if name != "full"]
+    lines += [f"| the render | {t['full']:.3f} | 100% |", "",
+              "Ray queries are the first two rows; for the path tracer to reach 0.75 of the ceiling, everything "
+              f"else would have to take at most {max(full['rays'] / (0.75 * c['rays_per_cpu_second']) - t['closest-hit queries'] - t['shadow-ray queries'], 0):.3f} "
+              "CPU s.", ""]
+    return lines
 
 
 def _mesh_spread(row: dict) -> str:
