@@ -19,13 +19,17 @@ FACES = np.array([[0, 1, 2], [2, 1, 3], [3, 4, 5], [0, 2, 5]])
 NORMALS = RNG.normal(size=(6, 3))
 
 
-def write_ply(path: Path, text: bool, normals: bool = False, faces=FACES) -> Path:
+def write_ply(path: Path, text: bool, normals: bool = False, faces=FACES, extra: dict | None = None) -> Path:
+    """`extra`: more float32 vertex properties by name."""
+    extra = extra or {}
     fields = [("x", "f4"), ("y", "f4"), ("z", "f4")] + ([("nx", "f4"), ("ny", "f4"), ("nz", "f4")] if normals else [])
-    vertex = np.empty(len(VERTICES), fields)
+    vertex = np.empty(len(VERTICES), fields + [(k, "f4") for k in extra])
     for i, k in enumerate("xyz"):
         vertex[k] = VERTICES[:, i]
         if normals:
             vertex["n" + k] = NORMALS[:, i]
+    for k, v in extra.items():
+        vertex[k] = v
     face = np.empty(len(faces), [("vertex_indices", "i4", (len(faces[0]),))])
     face["vertex_indices"] = faces
     PlyData([PlyElement.describe(vertex, "vertex"), PlyElement.describe(face, "face")], text=text).write(str(path))

@@ -75,7 +75,7 @@ VALUES = {
     "normalmap": '<texture type="bitmap" name="normalmap"><string name="filename" value="b.png"/></texture>',
     "flip_invalid_normals": '<boolean name="flip_invalid_normals" value="false"/>',
     "use_shadowing_function": '<boolean name="use_shadowing_function" value="false"/>',
-    "value": '<vector name="value" value="0.2, 0.3, 0.4"/>',
+    "value": '<vector name="value" value="0.2, 0.3, 0.4"/>', "name": '<string name="name" value="vertex_d"/>',
     "base_color": '<rgb name="base_color" value="0.2, 0.3, 0.4"/>', "roughness": '<float name="roughness" value="0.3"/>',
     **{name: f'<float name="{name}" value="0.4"/>' for name in (
         "anisotropic", "spec_trans", "sheen", "sheen_tint", "flatness", "spec_tint", "metallic", "clearcoat",
@@ -133,7 +133,7 @@ EXPECTED = {
                  "diffuse_transmittance_sampling_rate")}},
     "texture": {"color0": HONOURED, "color1": HONOURED, "to_uv": HONOURED, "filename": HONOURED, "bitmap": REFUSED,
                 "data": REFUSED, "raw": HONOURED, "filter_type": HONOURED, "wrap_mode": HONOURED, "format": REFUSED,
-                "accel": NO_EFFECT, "value": HONOURED},
+                "accel": NO_EFFECT, "value": HONOURED, "name": HONOURED, "scale": HONOURED},
     "emitter": {"radiance": HONOURED, "sampling_weight": NO_EFFECT, "to_world": NO_EFFECT,   # constant: uniform
                 "filename": HONOURED, "scale": HONOURED, "mis_compensation": NO_EFFECT, "bitmap": REFUSED,
                 "position": HONOURED, "intensity": HONOURED, "cutoff_angle": HONOURED, "beam_width": HONOURED,
@@ -211,6 +211,10 @@ def _scene_xml(tag: str, kind: str, param: str) -> tuple[str, str]:
             p = p.replace(VALUES["filename"], "") if param == "filename" else p
         if kind == "rawconstant" and param is None:     # Mitsuba requires its value
             p = '<float name="value" value="0.5"/>'
+        if kind == "mesh_attribute":                    # Mitsuba requires its name; a PLY file holds attributes
+            p += "" if param == "name" else '<string name="name" value="vertex_c"/>'
+            return header, ('<shape type="ply"><string name="filename" value="attr.ply"/><bsdf type="diffuse">'
+                            f'<texture type="{kind}" name="reflectance">{p}</texture></bsdf></shape>')
         body = (f'<shape type="rectangle"><bsdf type="diffuse"><texture type="{kind}" name="reflectance">{p}'
                 '</texture></bsdf></shape>')
     elif tag in ("medium", "phase", "volume"):
@@ -288,6 +292,7 @@ def _outcome(tmp_path, tag, kind, param) -> str:
     (tmp_path / "b.obj").write_text("v 0 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\n")
     write_ply(tmp_path / "a.ply", True)
     write_ply(tmp_path / "b.ply", False, faces=FACES[:2])
+    write_ply(tmp_path / "attr.ply", False, extra={"c_0": np.full(len(VERTICES), 0.25), "d_0": np.full(len(VERTICES), 0.5)})
     parts = [serialized_mesh(VERTICES, FACES), serialized_mesh(VERTICES[::-1], FACES[:3])]
     write_serialized(tmp_path / "a.serialized", parts)
     write_serialized(tmp_path / "b.serialized", parts[::-1])

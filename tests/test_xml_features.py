@@ -223,8 +223,8 @@ REFUSED = [
     ('<sensor type="perspective">\n</sensor>', '<sensor type="perspective">\n', "a second sensor"),
     ('<shape type="rectangle"><bsdf type="dielectric">\n<rgb name="specular_transmittance" value="0.5"/></bsdf>'
      '</shape>', "specular_transmittance", "other than 1"),
-    ('<shape type="rectangle"><bsdf type="diffuse">\n<texture type="mesh_attribute" name="reflectance"/></bsdf>'
-     '</shape>', "mesh_attribute", "unsupported texture plugin 'mesh_attribute'"),
+    ('<shape type="rectangle"><bsdf type="diffuse">\n<texture type="volume" name="reflectance"/></bsdf>'
+     '</shape>', 'type="volume"', "unsupported texture plugin 'volume'"),
     ('<emitter type="sunsky">\n</emitter>', 'type="sunsky"', "unsupported emitter plugin 'sunsky'"),
 ]
 

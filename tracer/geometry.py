@@ -54,6 +54,7 @@ class Surface:
     uv: tuple[Float, Float] | None = None   # texture coordinates, in scenes with textures only
     dpdu: Array3f | None = None   # the direction of dp/du, in scenes whose materials are oriented only
     dpdv: Array3f | None = None   # dp/dv (true length, as dp/du then), in scenes with bump maps only
+    bary: tuple[Float, Float] | None = None   # a triangle's b1, b2, in scenes with mesh attributes only
 
 
 def uses_bvh(scene: Scene) -> bool:
@@ -111,7 +112,7 @@ class SceneGeometry:
         self.rectangles, self.meshes = (self._set(cls) for cls in (RectangleSet, MeshSet))
         self.bvhs = [s.bvh for s in self.shape_sets if s.bvh is not None]   # walked after the unrolled tests
         self.curved_base = sum(s.count for s in self.shape_sets if s.planar)   # primitives below it are planar
-        self.materials = MaterialTables(scene.bsdfs, material_kinds)
+        self.materials = MaterialTables(scene.bsdfs, material_kinds, self.meshes)
         self.emitters = scene.emitters
         self.environment = scene.environment
         self.envmap = EnvmapKernel(scene.envmap) if scene.envmap is not None else None
@@ -298,7 +299,8 @@ class SceneGeometry:
         dpdv = None
         if self.materials.any_bumpmap:
             dpdv = self.meshes.cotangent(prim, valid, Array3f(0.0))
-        return Surface(hit.p, n, ns, material, dr.select(valid, hit.prim, NO_PRIM), valid, uv, dpdu, dpdv)
+        bary = (hit.b1, hit.b2) if self.materials.attributed else None
+        return Surface(hit.p, n, ns, material, dr.select(valid, hit.prim, NO_PRIM), valid, uv, dpdu, dpdv, bary)
 
     # ---- lights -----------------------------------------------------------------------------------
     def emitted(self, surf: Surface, wi: Array3f) -> Array3f:

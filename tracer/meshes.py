@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from . import ply_attributes
+from .ply_attributes import VERTEX_RESERVED, Attributes
 
 BLOCK = 1 << 15   # triangles whose coordinate rows are computed at once: the temporaries stay small, where
                   # all at once they took some 200 MB of fresh memory at 1M triangles
@@ -371,10 +373,11 @@ def length_rows(a: np.ndarray) -> np.ndarray:
 PLY_TEXCOORDS = (("u", "v"), ("s", "t"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))  # Mitsuba's
 
 
-def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """Vertices, triangles, per-vertex normals (None unless the file has nx, ny, nz) and texture coordinates
-    (None unless it has one of PLY_TEXCOORDS' pairs) of a PLY file, ASCII or binary (read with `plyfile`).
-    Faces must be triangles, as Mitsuba requires."""
+def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, Attributes]:
+    """Vertices, triangles, per-vertex normals (None unless the file has nx, ny, nz), texture coordinates
+    (None unless it has one of PLY_TEXCOORDS' pairs) and the vertex and face attributes Mitsuba makes of the
+    other properties (tracer.ply_attributes) of a PLY file, ASCII or binary (read with `plyfile`). Faces must
+    be triangles, as Mitsuba requires."""
     try:
         stat = path.stat()
         return _read_ply(path.resolve(), stat.st_size, stat.st_mtime_ns)
@@ -384,7 +387,7 @@ def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.
 
 @lru_cache(maxsize=16)
 def _read_ply(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None,
-                                                             np.ndarray | None]:
+                                                             np.ndarray | None, Attributes]:
     from plyfile import PlyData, PlyParseError
 
     try:
@@ -402,8 +405,11 @@ def _read_ply(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndar
                     if all(k in names for k in pair)), None)
         index = "vertex_indices" if "vertex_indices" in face.data.dtype.names else "vertex_index"
         rows = face[index]
+        attributes = _attributes(vertex, face, index)
     except MeshError:
         raise
+    except ply_attributes.DuplicateAttribute as e:
+        raise MeshError(f"{path}: {e}") from None
     except Exception as e:    # whatever plyfile raises on a malformed file (PlyParseError, ValueError, ...)
         raise MeshError(f"{path}: not a readable PLY mesh with vertex x, y, z and face vertex_indices "
                         f"({type(e).__name__}: {e})") from None
@@ -426,7 +432,25 @@ def _read_ply(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndar
     for a in (vertices, faces, normals, uvs):
         if a is not None:
             a.flags.writeable = False
-    return vertices, faces, normals, uvs
+    return vertices, faces, normals, uvs, attributes
+
+
+MITSUBA_TEXCOORDS = (("u", "v"), ("texture_u", "texture_v"), ("s", "t"))   # the pair Mitsuba's ply reads, in order
+
+
+def _attributes(vertex, face, index: str) -> Attributes:
+    """The vertex and face attributes of a PLY file's elements (plyfile's), as Mitsuba names them."""
+    from plyfile import PlyListProperty
+
+    names = vertex.data.dtype.names
+    texcoords = next((set(pair) for pair in MITSUBA_TEXCOORDS if all(k in names for k in pair)), set())
+    out, unread = {}, []
+    for element, kind, reserved in ((vertex, "vertex_", VERTEX_RESERVED | texcoords), (face, "face_", {index})):
+        properties = [(p.name, isinstance(p, PlyListProperty)) for p in element.properties]
+        found = ply_attributes.read(element.data, properties, kind, reserved)
+        out.update(found.values)
+        unread += [found.unread] if found.unread else []
+    return Attributes(out, "; ".join(unread))
 
 
 def _check_length(path: Path, ply) -> None:

@@ -22,7 +22,7 @@ from . import media, spectra, transform
 from .errors import clip, shorten
 from .film import ReconstructionFilter
 from .lights import PLUGINS as LIGHT_PLUGINS
-from .materials import BSDF, Bitmap, Checkerboard, bumpmap, textures
+from .materials import BSDF, bumpmap, textures
 from .materials import PLUGINS as BSDF_PLUGINS
 from .meshes import MeshError
 from .scene import Camera, Scene, SceneError
@@ -507,7 +507,7 @@ class _Props:
         texture = self.texture(name) if textured else None
         if texture is not None:
             self.read.add(name)
-            return float(default), texture
+            return float(default), textures.read_as(texture, textures.FLOAT)
         return float(self.get(name, default, ("float", "integer"))), None
     def fov(self) -> tuple[float, str]:
         """A projection's field of view (degrees) and its axis, as Mitsuba's parse_fov reads them: `fov` and
@@ -998,7 +998,7 @@ def _bsdf(ctx: _Context, node: Node) -> BSDF:
     return BSDF_PLUGINS[kind].from_xml(ctx, _Props(ctx, node, kind), node)
 
 
-def _texture(ctx: _Context, node: Node) -> Checkerboard | Bitmap:
+def _texture(ctx: _Context, node: Node) -> textures.Texture:
     return textures.from_xml(ctx, _Props(ctx, node, _check_type(ctx, node)), node)
 
 
@@ -1036,6 +1036,10 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node, outer: np.ndarray | None
                               f"{first.file}:{first.line} already; an emitter attaches to one shape (as Mitsuba)")
     radiance = ctx.attempt(ctx.built_once, emitters[0], lambda n: _area_light(ctx, n)) if emitters else None
     bsdf = ctx.attempt(ctx.bsdf, bsdfs[0]) if bsdfs else None
+    if bsdf is not None and kind not in textures.ATTRIBUTE_SHAPES and any(
+            isinstance(t, textures.MeshAttribute) for t in bsdf.every_texture()):
+        raise ctx.error(bsdfs[0], f"a mesh_attribute texture on a '{kind}' (Mitsuba reads 0 there); supported "
+                                  f"shapes: {', '.join(textures.ATTRIBUTE_SHAPES)} (the meshes with attributes)")
     if bsdf is not None and bsdf.texture_of("bumpmap") is not None and kind not in bumpmap.SHAPES:
         raise ctx.error(bsdfs[0], f"a bumpmap on a '{kind}' is not supported (the tracer computes dp/dv on "
                                   f"meshes only); supported shapes: {', '.join(bumpmap.SHAPES)}")

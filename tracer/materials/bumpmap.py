@@ -19,6 +19,7 @@ import drjit as dr
 
 from ..jit import Array2f, Array3f
 from .bsdf import BSDF
+from .textures import MeshAttribute
 
 PLUGINS = {"bumpmap": ("scale", "flip_invalid_normals", "use_shadowing_function")}
 SHAPES = ("obj", "ply", "serialized")      # the shapes whose dp/dv the tracer computes
@@ -34,6 +35,9 @@ def from_xml(ctx, props, node) -> BSDF:
     if len(inner) != 1 or len(textures) != 1:
         raise ctx.error(node, "bumpmap wraps one bsdf and one texture (as in Mitsuba)")
     texture = ctx.texture(textures[0])
+    if isinstance(texture, MeshAttribute):
+        raise ctx.error(textures[0], "bumpmap of a mesh_attribute: unsupported (it has no gradient: Mitsuba 3.9.1 "
+                                     "throws); supported: bitmap, checkerboard, rawconstant")
     nested = ctx.bsdf(inner[0])
     if (nested.twosided or nested.masked or nested.normalmap is not None or nested.blend is not None
             or nested.texture_of("bumpmap") is not None):

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..jit import Array3f, Float
 from .bsdf import BSDF
+from .textures import COLOR3, read_as
 
 PLUGINS = {"normalmap": ("normalmap", "flip_invalid_normals", "use_shadowing_function")}
 
@@ -34,7 +35,7 @@ def from_xml(ctx, props, node) -> BSDF:
             or nested.texture_of("bumpmap") is not None):
         raise ctx.error(inner[0], "normalmap around twosided, mask, blendbsdf or normalmap is not supported; "
                                   "supported: normalmap around one BSDF of any other kind")
-    return replace(nested, normalmap=texture, normalmap_flip=bool(flip), normalmap_shadowing=bool(shadowing))
+    return replace(nested, normalmap=read_as(texture, COLOR3), normalmap_flip=bool(flip), normalmap_shadowing=bool(shadowing))
 
 
 def tilted_frame(m: Array3f, first: Array3f | None = None) -> tuple[Array3f, Array3f, Array3f]:

@@ -9,14 +9,14 @@ import numpy as np
 from ..jit import Array2f, Array3f, Bool, Float, UInt32
 from .bsdf import BSDF
 from .dispatch import KIND_CODE, KINDS
-from .textures import TextureTables
+from .textures import MeshAttribute, TextureTables
 
 
 class MaterialTables:
     """`kinds`: the material codes the kernel carries (materials.DIFFUSE, CONDUCTOR, ...; default: those of
     `bsdfs`)."""
 
-    def __init__(self, bsdfs: list[BSDF], kinds: set[int] | None = None):
+    def __init__(self, bsdfs: list[BSDF], kinds: set[int] | None = None, meshes=None):
         backs = [b.back for b in bsdfs if b.back is not None]
         seconds = [b.blend[1] for b in bsdfs if b.blend is not None]
         backs += [b.back for b in seconds if b.back is not None]
@@ -47,7 +47,11 @@ class MaterialTables:
                                      for i, b in enumerate(rows)])
         self._opacity = Float([b.opacity for b in rows])
         self._back = UInt32([bsdfs.index(b.back) if b.back is not None else i for i, b in enumerate(rows)])
-        self.textures = TextureTables(textures) if self.textured else None
+        # the mesh attributes the textures read (`meshes`: the scene's shapes.mesh.MeshSet)
+        names = {t.name for t in textures if isinstance(t, MeshAttribute)}
+        self.attributed = bool(names)
+        self.textures = TextureTables(textures, meshes.attribute_table(names) if names else None) \
+            if self.textured else None
         if self.any_normalmap or self.any_bumpmap:
             self._normalmap_flags = Float(np.array([[b.normalmap_flip, b.normalmap_shadowing] for b in rows],
                                                    float).ravel())
@@ -86,8 +90,12 @@ class MaterialTables:
         index = self.texture_index(slot, surf, active)
         has = index > 0
         if isinstance(value, Array3f):
-            return dr.select(has, self.textures.eval(index, surf.uv, active & has), value)
-        return dr.select(has, self.textures.eval_1(index, surf.uv, active & has), value)
+            return dr.select(has, self.textures.eval(index, surf.uv, active & has, hit=self._hit(surf)), value)
+        return dr.select(has, self.textures.eval_1(index, surf.uv, active & has, self._hit(surf)), value)
+
+    def _hit(self, surf) -> tuple[UInt32, Float, Float] | None:
+        """The surface point's primitive and barycentric coordinates, for mesh attributes."""
+        return (surf.prim, *surf.bary) if self.attributed else None
 
     def normalmap(self, surf, active: Bool) -> tuple[Array3f, Bool, Bool, Bool]:
         """A normal map's tilted normal 2 c - 1 at the surface point (0, 0, 1 for materials without one), and
@@ -96,7 +104,8 @@ class MaterialTables:
         if self.any_normalmap:
             index = self.texture_index("normalmap", surf, active)
             has = index > 0
-            m = dr.select(has, self.textures.eval(index, surf.uv, active & has), Array3f(0.5, 0.5, 1.0)) * 2.0 - 1.0
+            m = dr.select(has, self.textures.eval(index, surf.uv, active & has, hit=self._hit(surf)),
+                          Array3f(0.5, 0.5, 1.0)) * 2.0 - 1.0
         flip = dr.gather(Float, self._normalmap_flags, surf.material * 2, active) > 0
         shadow = dr.gather(Float, self._normalmap_flags, surf.material * 2 + 1, active) > 0
         return m, has, flip, shadow

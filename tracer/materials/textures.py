@@ -1,12 +1,13 @@
-"""Mitsuba's textures: `checkerboard`, `bitmap` and `rawconstant`, their host description, one table over the
-scene's textures and the lookups in the kernel (tracer/bitmap.py reads the images). A material parameter
+"""Mitsuba's textures: `checkerboard`, `bitmap`, `rawconstant` and `mesh_attribute`, their host description, one
+table over the scene's textures and the lookups in the kernel (tracer/bitmap.py reads the images, the meshes'
+attributes are tabled by shapes.mesh.AttributeTable). A material parameter
 that a texture drives names it by slot (materials.bsdf.BSDF.slot_textures); the kernel evaluates it as a
 colour (`eval`, Mitsuba's eval_3) or as a float (`eval_1`: the colour's luminance, as Mitsuba's eval_1 of a
 three-channel texture, and the value itself for a grey one). As in Mitsuba 3.9.1, a checkerboard read as a
 float shows color0 on the squares where read as a colour it shows color1 (TextureTables.eval)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import drjit as dr
 import numpy as np
@@ -17,11 +18,12 @@ from ..spectra import rgb
 
 PLUGINS = {"checkerboard": ("color0", "color1", "to_uv"),
            "bitmap": ("filename", "bitmap", "data", "raw", "filter_type", "wrap_mode", "to_uv", "format", "accel"),
-           "rawconstant": ("value",)}
+           "rawconstant": ("value",),
+           "mesh_attribute": ("name", "scale")}
 FIELDS = 18         # per texture: kind, two colours, to_uv's two rows, a bitmap's offset, size and modes
 IDENTITY_UV = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 LUMINANCE = (0.212671, 0.715160, 0.072169)   # Mitsuba's luminance() of linear sRGB (CIE Y)
-CHECKERBOARD, BITMAP, CONSTANT = 1, 2, 3     # a texture's kind in its row (0: none)
+CHECKERBOARD, BITMAP, CONSTANT, ATTRIBUTE = 1, 2, 3, 4     # a texture's kind in its row (0: none)
 REPEAT, CLAMP, MIRROR = 0, 1, 2              # a bitmap's wrap modes
 
 
@@ -62,13 +64,40 @@ class Constant:
         return min(self.value), max(self.value)
 
 
-Texture = Checkerboard | Bitmap | Constant
+# how a parameter reads a texture, as Mitsuba's Texture methods: a spectrum (`eval`: in RGB variants a colour,
+# a one-channel attribute repeated), a float (`eval_1`), a colour (`eval_3`, the normal map's)
+SPECTRUM, FLOAT, COLOR3 = "spectrum", "float", "color3"
+CHANNELS = {SPECTRUM: (1, 3), FLOAT: (1,), COLOR3: (3,)}   # the attribute channels each reads (Mitsuba 3.9.1
+                                                           # reads 0 in its JIT variants for the others)
+
+
+@dataclass(frozen=True)
+class MeshAttribute:
+    """Mitsuba's `mesh_attribute`: the hit mesh's attribute `name` (tracer.ply_attributes) times `scale`; a
+    vertex attribute interpolated by the hit's barycentric coordinates, a face attribute the face's value.
+    `read`: how the parameter holding it reads it (SPECTRUM, FLOAT, COLOR3), which the channels must fit."""
+
+    name: str
+    scale: float = 1.0
+    read: str = SPECTRUM
+
+    def check(self, channels: int) -> str:
+        """Why an attribute of `channels` cannot be read as `read` ('' where it can)."""
+        if channels in CHANNELS[self.read]:
+            return ""
+        return (f"mesh_attribute '{self.name}' has {channels} channel{'s' * (channels > 1)} where a {self.read} is "
+                f"read; supported: {' or '.join(map(str, CHANNELS[self.read]))} (Mitsuba 3.9.1 reads 0 or throws)")
+
+
+Texture = Checkerboard | Bitmap | Constant | MeshAttribute
 
 
 def from_xml(ctx, props, node) -> Texture:
     kind = node.attrib.get("type")
     if kind == "bitmap":
         return _bitmap(ctx, node, props)
+    if kind == "mesh_attribute":
+        return _mesh_attribute(ctx, node, props)
     if kind == "rawconstant":
         if not props.has("value"):
             raise ctx.error(node, "rawconstant needs a 'value' (as in Mitsuba)")
@@ -79,6 +108,28 @@ def from_xml(ctx, props, node) -> Texture:
     m = props.get("to_uv", np.eye(4), ("transform",))
     props.finish()
     return Checkerboard(rgb(colours[0]), rgb(colours[1]), _to_uv(m))
+
+
+ATTRIBUTE_KINDS = ("vertex_", "face_")
+ATTRIBUTE_SHAPES = ("ply",)     # the shapes whose files hold attributes (Mitsuba's obj and serialized read none)
+
+
+def read_as(texture: Texture, read: str) -> Texture:
+    """The texture as a parameter reading it as `read` (SPECTRUM, FLOAT, COLOR3) sees it: a mesh attribute
+    carries how it is read, which its mesh's channels must fit (shapes.mesh.attribute_refusal)."""
+    return replace(texture, read=read) if isinstance(texture, MeshAttribute) else texture
+
+
+def _mesh_attribute(ctx, node, props) -> MeshAttribute:
+    name = props.get("name", None, ("string",))
+    scale = props.get("scale", 1.0, ("float", "integer"))
+    props.finish()
+    if name is None:
+        raise ctx.error(node, "mesh_attribute needs a <string name=\"name\"> (as in Mitsuba)")
+    if not name.startswith(ATTRIBUTE_KINDS):
+        raise ctx.error(props.values["name"], f"mesh_attribute name '{name}' unsupported; supported: a name "
+                                              "starting with 'vertex_' or 'face_' (a mesh's attributes)")
+    return MeshAttribute(name, float(scale))
 
 
 def _to_uv(m: np.ndarray) -> tuple[tuple[float, float, float], ...]:
@@ -118,17 +169,21 @@ def _bitmap(ctx, node, props) -> Bitmap:
 
 
 class TextureTables:
-    """One row per texture (row 0: none) and every bitmap's texels; a texture is named by its row."""
+    """One row per texture (row 0: none) and every bitmap's texels; a texture is named by its row.
+    `attributes`: the meshes' attributes (shapes.mesh.AttributeTable), where a texture is a mesh_attribute."""
 
-    def __init__(self, textures: list[Texture]):
+    def __init__(self, textures: list[Texture], attributes=None):
         rows = np.zeros((len(textures) + 1, FIELDS))
         texels = [np.zeros(3, np.float32)]
         offset = 1
+        self.attributes = attributes
         for i, t in enumerate(textures, start=1):
             if isinstance(t, Checkerboard):
                 rows[i, :13] = [CHECKERBOARD, *t.color0, *t.color1, *np.asarray(t.to_uv)[:2].ravel()]
             elif isinstance(t, Constant):
                 rows[i, :4] = [CONSTANT, *t.value]
+            elif isinstance(t, MeshAttribute):
+                rows[i, :5] = [ATTRIBUTE, *attributes.layout[t.name], t.scale]
             else:
                 h, w = t.image.shape[:2]
                 rows[i] = [BITMAP, 0, 0, 0, 0, 0, 0, *np.asarray(t.to_uv)[:2].ravel(), offset, w, h, t.bilinear, t.wrap]
@@ -136,8 +191,7 @@ class TextureTables:
                 offset += h * w
         self.rows = Float(rows.ravel())
         self.texels = Float(np.concatenate(texels))
-        self.kinds = {CHECKERBOARD if isinstance(t, Checkerboard) else CONSTANT if isinstance(t, Constant) else BITMAP
-                      for t in textures}
+        self.kinds = {KIND[type(t)] for t in textures}
 
     def _row(self, index: UInt32, active: Bool) -> list[Float]:
         return [dr.gather(Float, self.rows, index * FIELDS + k, active) for k in range(FIELDS)]
@@ -147,10 +201,13 @@ class TextureTables:
         u, v = uv
         return dr.fma(t[7], u, dr.fma(t[8], v, t[9])), dr.fma(t[10], u, dr.fma(t[11], v, t[12]))
 
-    def eval(self, index: UInt32, uv: tuple[Float, Float], active: Bool, as_float: bool = False) -> Array3f:
-        """Texture `index`'s colour at texture coordinates uv (index > 0). `as_float`: the colour eval_1 takes
-        the luminance of, which for a checkerboard is the other square's (Mitsuba 3.9.1's eval_1 picks color0
-        where the fractional parts of u' and v' are on different sides of 1/2, its eval where on the same)."""
+    def eval(self, index: UInt32, uv: tuple[Float, Float], active: Bool, as_float: bool = False,
+             hit: tuple[UInt32, Float, Float] | None = None) -> Array3f:
+        """Texture `index`'s colour at texture coordinates uv (index > 0), on the mesh triangle and at the
+        barycentric coordinates `hit` (its index in the meshes, b1, b2; for mesh attributes). `as_float`: the
+        colour eval_1 takes the luminance of, which for a checkerboard is the other square's (Mitsuba 3.9.1's
+        eval_1 picks color0 where the fractional parts of u' and v' are on different sides of 1/2, its eval
+        where on the same)."""
         t = self._row(index, active)
         tu, tv = self._uv(t, uv)
         first = (tu - dr.floor(tu) > 0.5) == (tv - dr.floor(tv) > 0.5)
@@ -162,11 +219,20 @@ class TextureTables:
         if BITMAP in self.kinds:
             bitmap = t[0] == BITMAP
             value = dr.select(bitmap, self._bitmap(t, tu, tv, active & bitmap), value)
+        if ATTRIBUTE in self.kinds:
+            attribute = t[0] == ATTRIBUTE
+            value = dr.select(attribute, self.attributes.eval(t[1:5], hit, active & attribute), value)
         return value
 
-    def eval_1(self, index: UInt32, uv: tuple[Float, Float], active: Bool) -> Float:
-        """Texture `index` as a float: its colour's luminance (exact for a grey one)."""
-        return luminance(self.eval(index, uv, active, as_float=True))
+    def eval_1(self, index: UInt32, uv: tuple[Float, Float], active: Bool,
+               hit: tuple[UInt32, Float, Float] | None = None) -> Float:
+        """Texture `index` as a float: its colour's luminance (exact for a grey one), a one-channel mesh
+        attribute's value."""
+        value = self.eval(index, uv, active, as_float=True, hit=hit)
+        if ATTRIBUTE in self.kinds:
+            kind = dr.gather(Float, self.rows, index * FIELDS, active)
+            return dr.select(kind == ATTRIBUTE, value.x, luminance(value))
+        return luminance(value)
 
     def grad_1(self, index: UInt32, uv: tuple[Float, Float], active: Bool) -> Array2f:
         """d eval_1 / d(u, v): as Mitsuba's eval_1_grad, the derivative of a bitmap's bilinear interpolation
@@ -212,6 +278,9 @@ class TextureTables:
         top = f00 * (1.0 - wx) + f10 * wx
         bottom = f01 * (1.0 - wx) + f11 * wx
         return top * (1.0 - wy) + bottom * wy
+
+
+KIND = {Checkerboard: CHECKERBOARD, Bitmap: BITMAP, Constant: CONSTANT, MeshAttribute: ATTRIBUTE}
 
 
 def luminance(c: Array3f) -> Float:

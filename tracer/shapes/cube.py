@@ -28,4 +28,4 @@ def local_mesh() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def from_xml(ctx, props, a: ShapeArgs) -> Mesh:
     props.finish()
     vertices, faces, uvs = local_mesh()
-    return _place(MeshFile(a, Path("cube"), 0, face_normals=True), (vertices, faces, None, uvs))
+    return _place(MeshFile(a, Path("cube"), 0, face_normals=True), (vertices, faces, None, uvs, None))

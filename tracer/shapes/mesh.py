@@ -15,6 +15,7 @@ from .. import transform
 from .bvh import BVHKernel, triangle_frames
 from .bvh_build import aligned_zeros
 from .bvh_cache import cached_layout
+from ..ply_attributes import Attributes
 from ..meshes import (MeshError, bounding_box, corner_blocks, cross_rows, length_rows, read_obj, read_ply,
                       vertex_normals)
 from ..serialized import read_serialized
@@ -22,6 +23,8 @@ from ..jit import CORES, HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, opaque_u
 from ..sampling import square_to_uniform_triangle
 from .base import ShapeArgs, ShapeSet, exclude
 from .triangle import ray_triangle
+
+from ..materials.textures import MeshAttribute
 
 if TYPE_CHECKING:
     from ..materials import BSDF
@@ -45,6 +48,7 @@ class Mesh:
     radiance: tuple[float, float, float] | None = None
     name: str = ""
     uvs: np.ndarray | None = None        # per-vertex texture coordinates; None: a triangle's (b1, b2)
+    attributes: Attributes | None = None   # a PLY file's vertex and face attributes (None: the format has none)
 
     @cached_property
     def triangle_areas(self) -> np.ndarray:
@@ -117,12 +121,13 @@ def _read_and_place(file: tuple[str, Path, int], requests: list[MeshFile]) -> li
 
 
 def _read(file: tuple[str, Path, int]) -> tuple | MeshError:
-    """(vertices, faces, normals, uvs) of a mesh file, as its reader gives them, or the reader's error."""
+    """(vertices, faces, normals, uvs, attributes) of a mesh file, as its reader gives them (attributes None
+    for the formats without), or the reader's error."""
     kind, path, shape_index = file
     try:
         if kind == "serialized":
-            return read_serialized(path, shape_index)
-        return (read_obj if kind == "obj" else read_ply)(path)
+            return (*read_serialized(path, shape_index), None)
+        return read_ply(path) if kind == "ply" else (*read_obj(path), None)
     except MeshError as e:
         return e
 
@@ -132,9 +137,11 @@ def _place(r: MeshFile, read: tuple | MeshError) -> Mesh | MeshError:
     not asked for)."""
     if isinstance(read, MeshError):
         return read
-    vertices, faces, normals, uvs = read
+    vertices, faces, normals, uvs, attributes = read
     a = r.args
-    textured = bool(a.bsdf.every_texture())
+    if why := attribute_refusal(a.bsdf, attributes):
+        return MeshError(why)
+    textured = any(not isinstance(t, MeshAttribute) for t in a.bsdf.every_texture())   # read at texture coordinates
     if a.flip and textured and uvs is None:
         return MeshError("flip_normals with a texture on a mesh without texture coordinates is unsupported")
     if textured and uvs is not None and np.isnan(uvs[np.unique(faces)]).any():
@@ -151,7 +158,26 @@ def _place(r: MeshFile, read: tuple | MeshError) -> Mesh | MeshError:
         normals = vertex_normals(vertices, faces)
     else:
         normals = transform.apply_normal(a.to_world, normals) * (-1.0 if a.flip else 1.0)
-    return Mesh(vertices, faces, a.bsdf, normals, a.radiance, a.name, uvs)
+    return Mesh(vertices, faces, a.bsdf, normals, a.radiance, a.name, uvs, attributes)
+
+
+def attribute_refusal(bsdf: BSDF, attributes: Attributes | None) -> str:
+    """Why the material's mesh_attribute textures cannot be read on a mesh of these attributes ('' where
+    they can): a name it lacks, channels the parameter cannot read, attributes Mitsuba reads astray."""
+    wanted = [t for t in bsdf.every_texture() if isinstance(t, MeshAttribute)]
+    if not wanted:
+        return ""
+    if attributes is None:
+        return "mesh_attribute on a mesh format without attributes; supported: ply"
+    if attributes.unread:
+        return f"mesh_attribute on a PLY file whose properties Mitsuba 3.9.1 groups astray: {attributes.unread}"
+    for t in wanted:
+        values = attributes.values.get(t.name)
+        if values is None:
+            return f"mesh_attribute '{t.name}': the mesh has no such attribute; its attributes: {attributes.describe()}"
+        if why := t.check(values.shape[1]):
+            return why
+    return ""
 
 
 class MeshSet(ShapeSet):
@@ -275,6 +301,24 @@ class MeshSet(ShapeSet):
         self.tangents = Float(out.astype(HOST_FLOAT).ravel())
         self.cotangents = Float(out_v.astype(HOST_FLOAT).ravel())
 
+    def attribute_table(self, names: set[str]) -> AttributeTable:
+        """The meshes' attributes `names` per triangle: a face attribute's value, a vertex attribute's at
+        each corner; a name's channels are the most any mesh gives it (a mesh of one channel repeated)."""
+        blocks, layout, offset = [], {}, 0
+        for name in sorted(names):
+            have = [m.attributes.values[name] for m in self.shapes if m.attributes and name in m.attributes.values]
+            channels = max((a.shape[1] for a in have), default=1)
+            per_vertex = name.startswith("vertex_")
+            block = np.zeros((max(self.count, 1), 3 if per_vertex else 1, channels), np.float32)
+            for m, lo, n in self.shape_primitives():
+                a = m.attributes.values.get(name) if m.attributes else None
+                if a is not None:
+                    block[lo - self.base:lo - self.base + n] = (a[m.faces] if per_vertex else a[:, None])
+            blocks.append(block.ravel())
+            layout[name] = (offset, channels, per_vertex)
+            offset += block.size
+        return AttributeTable(Float(np.concatenate(blocks)), layout, *self._range)
+
     def tangent(self, prim, valid, p, b1, b2, dpdu):
         if not self.count:
             return dpdu
@@ -382,6 +426,35 @@ class MeshSet(ShapeSet):
             cn = [dr.gather(Array3f, self.corner_normals, (prim - self.base) * 3 + c) for c in range(3)]
             n = dr.normalize(cn[0] * (1.0 - b1 - b2) + cn[1] * b1 + cn[2] * b2)
         return y, n, prim
+
+
+@dataclass(eq=False)
+class AttributeTable:
+    """The meshes' attributes (MeshSet.attribute_table) as the kernel reads them: `layout` gives each name's
+    offset in `values`, its channels and whether it is a vertex attribute (3 corners per triangle)."""
+
+    values: Float
+    layout: dict[str, tuple[int, int, bool]]
+    base: UInt32            # the meshes' first primitive and triangle count
+    count: UInt32
+
+    def eval(self, row: list[Float], hit: tuple[UInt32, Float, Float], active: Bool) -> Array3f:
+        """The attribute of a texture row (offset, channels, per vertex, scale) at `hit` (a primitive and its
+        barycentric b1, b2): a vertex attribute's corners v0, v1, v2 weighted by b0 = 1 - b1 - b2, b1, b2, a
+        face attribute's one value, times the scale; a one-channel attribute in all three channels."""
+        prim, b1, b2 = hit
+        tri = prim - self.base
+        active = active & (prim >= self.base) & (tri < self.count)
+        offset, channels, per_vertex, scale = UInt32(row[0]), UInt32(row[1]), row[2] > 0, row[3]
+        channel = [dr.minimum(UInt32(k), channels - 1) for k in range(3)]
+
+        def corner(first: UInt32, on: Bool) -> Array3f:
+            return Array3f(*(dr.gather(Float, self.values, first + c, on) for c in channel))
+
+        face = corner(offset + tri * channels, active & ~per_vertex)
+        v0, v1, v2 = (corner(offset + (tri * 3 + k) * channels, active & per_vertex) for k in range(3))
+        vertex = dr.fma(v0, 1.0 - b1 - b2, dr.fma(v1, b1, v2 * b2))
+        return dr.select(active, dr.select(per_vertex, vertex, face) * scale, Array3f(0.0))
 
 
 def coordinate_system_rows(n: np.ndarray, both: bool = False):

@@ -5,7 +5,10 @@ first, in one line. Written into a folder:
 
     scene.json        {"format": FORMAT, "camera", "film", "integrator", "materials", "shapes", "emitters"}
     shapes/NNN.ply    each shape as a world-space triangle mesh (binary PLY: x y z [nx ny nz] [u v];
-                      vertex_indices), wound so that (v1 - v0) x (v2 - v0) is Mitsuba's front side
+                      vertex_indices), wound so that (v1 - v0) x (v2 - v0) is Mitsuba's front side; a PLY
+                      mesh's attributes (a `mesh_attribute` texture's values) as properties NAME_0, NAME_1,
+                      NAME_2 of the vertices (attribute vertex_NAME) or faces (face_NAME), which Mitsuba's
+                      `ply` reads back under the same names
 
 Conventions (Mitsuba's, which the check compares against):
 - camera: `to_world` (4 x 4, row-major) maps camera space (looking down +z, up +y, x to the image's LEFT, as
@@ -51,7 +54,7 @@ def write(scene_plan, folder: Path) -> Path:
     for i, shape in enumerate(scene.shapes):
         kind, analytic, (v, f, n, uv) = _triangles(shape)
         mesh = f"shapes/{i:03d}.ply"
-        _write_ply(folder / mesh, v, f, n, uv)
+        _write_ply(folder / mesh, v, f, n, uv, getattr(shape, "attributes", None))
         if shape.bsdf not in materials:
             materials.append(shape.bsdf)
         shapes.append({"name": shape.name, "type": kind, "mesh": mesh, "triangles": int(len(f)),
@@ -211,15 +214,24 @@ def _apply_normal(m: np.ndarray, n: np.ndarray) -> np.ndarray:
     return out / np.linalg.norm(out, axis=1, keepdims=True)
 
 
-def _write_ply(path: Path, v, faces, normals, uv) -> None:
+def _write_ply(path: Path, v, faces, normals, uv, attributes=None) -> None:
+    """`attributes`: a PLY mesh's (tracer.ply_attributes.Attributes), those of 1 or 3 channels written."""
     from plyfile import PlyData, PlyElement
 
     names = ["x", "y", "z"] + (["nx", "ny", "nz"] if normals is not None else []) + (["u", "v"] if uv is not None else [])
     columns = [np.asarray(v, np.float32)] + [np.asarray(a, np.float32) for a in (normals, uv) if a is not None]
+    extra = {"vertex_": [], "face_": []}
+    for name, values in (attributes.values.items() if attributes is not None else ()):
+        kind = "vertex_" if name.startswith("vertex_") else "face_"
+        if values.shape[1] in (1, 3):
+            extra[kind] += [(f"{name[len(kind):]}_{k}", values[:, k]) for k in range(values.shape[1])]
     table = np.concatenate(columns, axis=1)
-    vertex = np.empty(len(table), dtype=[(name, "f4") for name in names])
+    vertex = np.empty(len(table), dtype=[(name, "f4") for name in names + [n for n, _ in extra["vertex_"]]])
     for i, name in enumerate(names):
         vertex[name] = table[:, i]
-    face = np.empty(len(faces), dtype=[("vertex_indices", "u4", (3,))])
+    face = np.empty(len(faces), dtype=[("vertex_indices", "u4", (3,))] + [(n, "f4") for n, _ in extra["face_"]])
     face["vertex_indices"] = np.asarray(faces, np.uint32)
+    for element, kind in ((vertex, "vertex_"), (face, "face_")):
+        for name, column in extra[kind]:
+            element[name] = column
     PlyData([PlyElement.describe(vertex, "vertex"), PlyElement.describe(face, "face")]).write(str(path))
