@@ -71,3 +71,33 @@ def test_fails_when_filtered_before_decoding(monkeypatch):
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=2)
     result = compare_passes(tracer_passes(2), ref, ALPHA)
     assert result.verdict == "disagree", result.summary()
+
+
+@pytest.mark.parametrize("wrap", [textures.REPEAT, textures.MIRROR])
+@pytest.mark.parametrize("bilinear", [False, True])
+def test_repeat_and_mirror_are_exact_at_any_coordinate(wrap, bilinear):
+    """Texture coordinates from 1e7 (where u w has no fraction) up to 1e37 (bilinear: 1e14, where float64 holds
+    u w - 1/2 exactly): the texels are those of the float32 lookup position's exact remainder over the period
+    (the neighbours of a bilinear lookup too, whose weights are 0 there). The remainder r - n * floor(r / n) of
+    float32 arithmetic, which the lookup used before, misses on most of them."""
+    rng = np.random.default_rng(11)
+    h, w, n = 5, 7, 4000
+    image = rng.random((h, w, 3)).astype(np.float32)
+    top = 14 if bilinear else 37
+    u, v = ((rng.choice([-1, 1], n) * 10.0 ** rng.uniform(7, top, n)).astype(np.float32) for _ in range(2))
+    t = textures.TextureTables([textures.Bitmap(image, bilinear=bilinear, wrap=wrap)])
+    got = t.eval(UInt32(np.ones(n, np.uint32)), (Float(u), Float(v)), True)
+    got = np.stack([c.numpy() for c in got], axis=1)
+
+    def wrapped(i: int, m: int) -> int:
+        r = i % (m if wrap == textures.REPEAT else 2 * m)
+        return r if r < m else 2 * m - 1 - r
+
+    if bilinear:     # texel centres: u w - 1/2 rounded once, as the lookup's fused multiply-add
+        x, y = (np.floor((a.astype(np.float64) * m - 0.5).astype(np.float32)) for a, m in ((u, w), (v, h)))
+    else:
+        x, y = (np.floor(a * np.float32(m)) for a, m in ((u, w), (v, h)))
+    expected = np.array([image[wrapped(int(j), h), wrapped(int(i), w)] for i, j in zip(x, y)])
+    assert np.array_equal(got, expected)
+    naive = x - np.float32(w) * np.floor(x / np.float32(w))
+    assert np.mean((naive < 0) | (naive >= w) | (naive != [int(i) % w for i in x])) > 0.5

@@ -13,7 +13,7 @@ import drjit as dr
 import numpy as np
 
 from ..bitmap import BitmapError, read_bitmap
-from ..jit import Array2f, Array3f, Bool, Float, UInt32
+from ..jit import HOST_FLOAT, Array2f, Array3f, Bool, Float, UInt32
 from ..spectra import rgb
 
 PLUGINS = {"checkerboard": ("color0", "color1", "to_uv"),
@@ -255,22 +255,28 @@ class TextureTables:
         and the bilinear weights toward the second column and row (0 for nearest lookups)."""
         offset, w, h, bilinear, wrap = t[13], t[14], t[15], t[16] > 0, t[17]
 
-        def wrapped(i: Float, n: Float) -> UInt32:
-            repeat = i - n * dr.floor(i / n)
-            period = i - 2.0 * n * dr.floor(i / (2.0 * n))             # mirror: period 2n, reflected
-            mirror = dr.select(period >= n, 2.0 * n - 1.0 - period, period)
-            out = dr.select(wrap == REPEAT, repeat, dr.select(wrap == MIRROR, mirror, dr.clip(i, 0.0, n - 1.0)))
-            return UInt32(out)
-
-        def texel(i: Float, j: Float) -> Array3f:
-            index = UInt32(offset) + wrapped(j, h) * UInt32(w) + wrapped(i, w)
-            return dr.gather(Array3f, self.texels, index, active)
+        def wrapped(i: Float, n: Float) -> tuple[UInt32, UInt32]:
+            """The texels i and i + 1 of an axis of n, wrapped: repeat and mirror by i's remainder over their
+            period (n; 2n, reflected in its second half), clamp by clipping."""
+            period = dr.select(wrap == MIRROR, 2.0 * n, n)
+            r0 = modulo(i, period)
+            r1 = dr.select(r0 + 1.0 >= period, 0.0, r0 + 1.0)
+            out = []
+            for r, k in ((r0, i), (r1, i + 1.0)):
+                folded = dr.select((wrap == MIRROR) & (r >= n), 2.0 * n - 1.0 - r, r)
+                out.append(UInt32(dr.select(wrap == CLAMP, dr.clip(k, 0.0, n - 1.0), folded)))
+            return out[0], out[1]
 
         x = dr.select(bilinear, dr.fma(u, w, -0.5), u * w)
         y = dr.select(bilinear, dr.fma(v, h, -0.5), v * h)
         x0, y0 = dr.floor(x), dr.floor(y)
         wx, wy = dr.select(bilinear, x - x0, 0.0), dr.select(bilinear, y - y0, 0.0)
-        return (texel(x0, y0), texel(x0 + 1.0, y0), texel(x0, y0 + 1.0), texel(x0 + 1.0, y0 + 1.0)), (wx, wy)
+        (i0, i1), (j0, j1) = wrapped(x0, w), wrapped(y0, h)
+
+        def texel(i: UInt32, j: UInt32) -> Array3f:
+            return dr.gather(Array3f, self.texels, UInt32(offset) + j * UInt32(w) + i, active)
+
+        return (texel(i0, j0), texel(i1, j0), texel(i0, j1), texel(i1, j1)), (wx, wy)
 
     def _bitmap(self, t: list[Float], u: Float, v: Float, active: Bool) -> Array3f:
         """A bitmap texture's texels around (u, v), filtered and wrapped (tracer/bitmap.py)."""
@@ -281,6 +287,23 @@ class TextureTables:
 
 
 KIND = {Checkerboard: CHECKERBOARD, Bitmap: BITMAP, Constant: CONSTANT, MeshAttribute: ATTRIBUTE}
+
+
+# remainder passes: each leaves |r| below n + |r| 2^(1 - mantissa bits), so that these take any finite float
+# to within one period (float32: 2^128 -> 2^105 -> ... -> below 2n; float64: 2^1024 likewise)
+MODULO_PASSES = 20 if HOST_FLOAT == np.float64 else 6
+
+
+def modulo(i: Float, n: Float) -> Float:
+    """i mod n in [0, n), exactly, for integer-valued floats i of any magnitude and integers n > 0. A pass
+    r - n floor(r / n) is exact in one fused multiply-add (the result is an integer far smaller than r, which
+    needs no more bits than r), but floor(r / n) is off by many periods where r / n has an ulp above 1: the
+    passes repeat it until r lies within one period of [0, n). (r - n * floor(r / n), with n q rounded first,
+    picked other texels, or none, from |u| of about 2^24 / n.)"""
+    r = i
+    for _ in range(MODULO_PASSES):
+        r = dr.fma(-n, dr.floor(r / n), r)
+    return dr.select(r < 0.0, r + n, dr.select(r >= n, r - n, r))
 
 
 def luminance(c: Array3f) -> Float:
