@@ -77,17 +77,43 @@ def test_attributes_are_grouped_as_mitsuba_groups_them(tmp_path, mi):
     assert attributes.values["face_color"].max() > 1      # bytes as numbers, as Mitsuba (which warns)
 
 
+@pytest.mark.parametrize("vertex, face", [
+    (["red", "green", "blue", "alpha", "q_1", "q_2", "q_3"], ["s_w"]),
+    (["r", "g", "b", "a", "alpha", "k_x", "k_y"], ["a_0", "a_1", "a_2"]),
+    (["foo_r", "foo_g", "foo_b", "bar_0", "long_xy", "bar_z"], ["t_0", "t_1", "t_2", "t_3"]),
+])
+def test_more_groupings_as_mitsuba(tmp_path, mi, vertex, face):
+    """Four-channel colours, red/green/blue renamed, groups of 2 and 4 (dropped), postfixes starting no row, a
+    postfix of two letters closing a group."""
+    n = (N + 1) ** 2, 2 * N * N
+    path = write_ply(tmp_path / "b.ply", {k: RNG.random(n[0]).astype(np.float32) for k in vertex},
+                     {k: RNG.random(n[1]).astype(np.float32) for k in face})
+    attributes = read_ply(path)[4]
+    theirs = mi.load_dict({"type": "ply", "filename": str(path)})
+    names = {k for k in mi.traverse(theirs).keys() if k.startswith(("vertex_", "face_"))}
+    assert names - {"vertex_positions", "vertex_normals", "vertex_texcoords", "faces"} == set(attributes.values)
+    for name, values in attributes.values.items():
+        assert np.array_equal(np.array(theirs.attribute_buffer(name), np.float32), values.ravel()), name
+
+
 def test_ascii_and_binary_files_give_the_same_attributes(tmp_path):
     fields = {"c_x": np.arange(16, dtype=np.float32), "c_y": np.ones(16, np.float32), "c_z": np.zeros(16, np.float32)}
     a, b = (read_ply(write_ply(tmp_path / f"{t}.ply", fields, {}, text=t))[4].values for t in (True, False))
     assert list(a) == ["vertex_c"] and np.array_equal(a["vertex_c"], b["vertex_c"])
 
 
-def test_a_name_given_twice_is_refused(tmp_path):
-    """r, g, b and color_0, color_1, color_2 both make vertex_color: Mitsuba refuses the file."""
-    v = {k: np.zeros(16, np.float32) for k in ("r", "g", "b", "color_0", "color_1", "color_2")}
-    with pytest.raises(MeshError, match="vertex_color"):
-        read_ply(write_ply(tmp_path / "twice.ply", v, {}))
+@pytest.mark.parametrize("vertex, face, words", [
+    (("r", "g", "b", "color_0", "color_1", "color_2"), (), "attribute 'vertex_color'"),
+    ((), ("a_0", "i0"), "face property named 'i0'")])
+def test_files_mitsuba_refuses_are_refused(tmp_path, mi, vertex, face, words):
+    """r, g, b and color_0, color_1, color_2 both make vertex_color; a face property named as a face index."""
+    n = (N + 1) ** 2, 2 * N * N
+    path = write_ply(tmp_path / "refused.ply", {k: np.zeros(n[0], np.float32) for k in vertex},
+                     {k: np.zeros(n[1], np.float32) for k in face})
+    with pytest.raises(MeshError, match=words):
+        read_ply(path)
+    with pytest.raises(RuntimeError):
+        mi.load_dict({"type": "ply", "filename": str(path)})
 
 
 def test_kernel_interpolates_vertex_and_holds_face_attributes(tmp_path):
@@ -107,10 +133,10 @@ def test_kernel_interpolates_vertex_and_holds_face_attributes(tmp_path):
     faces = np.repeat(np.arange(len(m.faces)), 20)
     b = RNG.dirichlet(np.ones(3), len(faces))
     hit = (UInt32(faces), Float(b[:, 1]), Float(b[:, 2]))
-    cases = {("vertex_dir", 0.5): (m.attributes.values["vertex_dir"][m.faces[faces]] * b[:, :, None]).sum(1) * 0.5,
-             ("face_color", 1.0): m.attributes.values["face_color"][faces],
-             ("vertex_temp", 2.0): np.repeat((m.attributes.values["vertex_temp"][m.faces[faces], 0] * b).sum(1)[:, None] * 2,
-                                             3, 1)}
+    values = m.attributes.values
+    cases = {("vertex_dir", 0.5): (values["vertex_dir"][m.faces[faces]] * b[:, :, None]).sum(1) * 0.5,
+             ("face_color", 1.0): values["face_color"][faces],
+             ("vertex_temp", 2.0): np.repeat((values["vertex_temp"][m.faces[faces], 0] * b).sum(1)[:, None] * 2, 3, 1)}
     for (name, scale), expected in cases.items():
         textures = TextureTables([MeshAttribute(name, scale)], table)
         got = textures.eval(UInt32(np.ones(len(faces), np.uint32)), (Float(0), Float(0)), True, hit=hit)
@@ -150,7 +176,8 @@ def test_a_shape_without_attributes_is_refused(tmp_path, shape):
     (NAME.format("vertex_tint_color"), "blendbsdf", "weight", ["3 channels where a float", "supported: 1"]),
     (NAME.format("vertex_temp"), "normalmap", "normalmap", ["1 channel where a color3", "supported: 3"]),
     (NAME.format("vertex_temp"), "bumpmap", "", ["bumpmap of a mesh_attribute", "supported: bitmap"]),
-    (NAME.format("tint_color"), "diffuse", "reflectance", [":12: <string name=\"name\">", "starting with 'vertex_' or 'face_'"]),
+    (NAME.format("tint_color"), "diffuse", "reflectance",
+     [":12: <string name=\"name\">", "starting with 'vertex_' or 'face_'"]),
     ("", "diffuse", "reflectance", ["<texture type=\"mesh_attribute\">", "needs a <string name=\"name\">"]),
 ])
 def test_what_is_not_honoured_is_refused(tmp_path, texture, bsdf, slot, words):
@@ -181,7 +208,8 @@ AGREEMENT_SCENE = """<scene version="3.0.0">
         <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="16"/>
             <rfilter type="box"/></film>
     </sensor>
-    <emitter type="directional"><vector name="direction" value="0.2, -0.3, 1"/><rgb name="irradiance" value="3"/></emitter>
+    <emitter type="directional">
+        <vector name="direction" value="0.2, -0.3, 1"/><rgb name="irradiance" value="3"/></emitter>
     <shape type="ply">
         <string name="filename" value="a.ply"/>
         <transform name="to_world"><scale value="0.95"/><translate x="1"/></transform>

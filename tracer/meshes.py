@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from . import ply_attributes
-from .ply_attributes import VERTEX_RESERVED, Attributes
+from .ply_attributes import FACE_RESERVED, VERTEX_RESERVED, Attributes
 
 BLOCK = 1 << 15   # triangles whose coordinate rows are computed at once: the temporaries stay small, where
                   # all at once they took some 200 MB of fresh memory at 1M triangles
@@ -408,7 +408,7 @@ def _read_ply(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndar
         attributes = _attributes(vertex, face, index)
     except MeshError:
         raise
-    except ply_attributes.DuplicateAttribute as e:
+    except ply_attributes.Refused as e:
         raise MeshError(f"{path}: {e}") from None
     except Exception as e:    # whatever plyfile raises on a malformed file (PlyParseError, ValueError, ...)
         raise MeshError(f"{path}: not a readable PLY mesh with vertex x, y, z and face vertex_indices "
@@ -445,7 +445,8 @@ def _attributes(vertex, face, index: str) -> Attributes:
     names = vertex.data.dtype.names
     texcoords = next((set(pair) for pair in MITSUBA_TEXCOORDS if all(k in names for k in pair)), set())
     out, unread = {}, []
-    for element, kind, reserved in ((vertex, "vertex_", VERTEX_RESERVED | texcoords), (face, "face_", {index})):
+    elements = ((vertex, "vertex_", VERTEX_RESERVED | texcoords), (face, "face_", FACE_RESERVED | {index}))
+    for element, kind, reserved in elements:
         properties = [(p.name, isinstance(p, PlyListProperty)) for p in element.properties]
         found = ply_attributes.read(element.data, properties, kind, reserved)
         out.update(found.values)

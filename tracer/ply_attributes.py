@@ -21,6 +21,7 @@ import numpy as np
 
 ROWS = ("xyzw", "rgba", "0123", "1234")   # the postfix sequences, by category
 VERTEX_RESERVED = frozenset({"x", "y", "z", "nx", "ny", "nz", "u", "v"})
+FACE_RESERVED = frozenset({"i0", "i1", "i2"})    # Mitsuba's names of a face's indices (a property so named: refused)
 
 
 @dataclass(frozen=True)
@@ -35,8 +36,9 @@ class Attributes:
             or "none"
 
 
-class DuplicateAttribute(ValueError):
-    """Two groups of a file's properties give the same attribute name (Mitsuba refuses the file)."""
+class Refused(ValueError):
+    """A file Mitsuba's ply refuses: two groups of its properties give one attribute name, or a face property
+    takes the name of a face index."""
 
 
 def groups(names: list[str | None], element: str, reserved: set[str]) -> tuple[list[tuple[str, list[str]]], str]:
@@ -90,12 +92,14 @@ def groups(names: list[str | None], element: str, reserved: set[str]) -> tuple[l
 def read(data: np.ndarray, properties: list[tuple[str, bool]], element: str, reserved: set[str]) -> Attributes:
     """The attributes of an element's rows `data` (a structured array), its properties in file order as
     (name, is a list)."""
+    if element == "face_" and (taken := FACE_RESERVED & {name for name, _ in properties}):
+        raise Refused(f"a face property named '{min(taken)}', Mitsuba's name of a face index (Mitsuba refuses the file)")
     names = [None if is_list and name not in reserved else name for name, is_list in properties]
     found, unread = groups(names, element, reserved)
     values = {}
     for name, fields in found:
         if name in values:
-            raise DuplicateAttribute(f"two groups of {element[:-1]} properties give the attribute '{name}' "
+            raise Refused(f"two groups of {element[:-1]} properties give the attribute '{name}' "
                                   "(Mitsuba refuses the file)")
         a = np.stack([np.asarray(data[f], np.float32) for f in fields], axis=1).reshape(len(data), len(fields))
         a.flags.writeable = False
