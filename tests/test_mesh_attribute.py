@@ -303,3 +303,10 @@ def test_an_instanced_mesh_reads_its_attributes(tmp_path):
         (tmp_path / name).write_text(xml)
         images.append(render(tracer.load_scene(tmp_path / name), "path", seed=3, spp=4).image)
     assert images[0].mean() > 0.05 and np.mean(np.abs(images[0] - images[1]) < 1e-4) > 0.99
+
+
+def test_report_estimator_refuses_mesh_attributes(tmp_path):
+    attribute_file(tmp_path / "a.ply")
+    (tmp_path / "scene.xml").write_text(AGREEMENT_SCENE)
+    (line,) = tracer.load_scene(tmp_path / "scene.xml").estimator_refusals("report")
+    assert "mesh_attribute" in line and "--estimator path" in line

@@ -180,7 +180,7 @@ class Scene:
                        "samples; use --estimator path")
         if estimator == "report" and any(b.every_texture() for b in self.bsdfs):
             out.append(f"{self.path}: the report estimator does not render textures (checkerboard, bitmap, "
-                       "rawconstant, normalmap); use --estimator path")
+                       "rawconstant, mesh_attribute, normalmap); use --estimator path")
         return out
 
     @property
