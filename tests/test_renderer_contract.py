@@ -154,15 +154,28 @@ def test_scene_json_names_parameters_as_mitsuba(tmp_path):
     assert all("reflectance" not in m for m in conductors)
 
 
+NUMPY_RENDERER = (f"{sys.executable} {SCENES.parent / 'examples' / 'numpy_renderer.py'} {{scene_json}} --spp {{spp}} "
+                  "--seeds {seeds} --outputs {outputs}")
+SMALL = ["--max-depth", "3", "--size", "16", "--passes", "8", "--spp", "16", "--max-spp", "16"]
+
+
 def test_a_renderer_written_against_scene_json_alone_agrees(tmp_path, capsys, monkeypatch):
     """examples/numpy_renderer.py (no Mitsuba, nothing of the project) through the batch form and two jobs: it
-    agrees on the Cornell box at max_depth 3 (16 px, 8 x 16 spp), and says 'unsupported' for a point light."""
+    agrees on spot_lights.xml at max_depth 3 (point and spot lights, an area light, a smooth conductor and
+    dielectric; 16 px, 8 x 16 spp), and says 'unsupported' for the tent filter of mesh_formats.xml."""
     monkeypatch.setenv("VALIDATE_CACHE", str(tmp_path))
-    example = SCENES.parent / "examples" / "numpy_renderer.py"
-    command = f"{sys.executable} {example} {{scene_json}} --spp {{spp}} --seeds {{seeds}} --outputs {{outputs}}"
-    code = cli.main(["check", str(SCENES / "cornell_box.xml"), str(SCENES / "point_lights.xml"), "--renderer", command,
-                     "--jobs", "2", "--label", "numpy", "--max-depth", "3", "--size", "16", "--passes", "8",
-                     "--spp", "16", "--max-spp", "16"])
+    code = cli.main(["check", str(SCENES / "spot_lights.xml"), str(SCENES / "mesh_formats.xml"), "--renderer",
+                     NUMPY_RENDERER, "--jobs", "2", "--label", "numpy", *SMALL])
     out = capsys.readouterr().out
     assert code == 0, out
-    assert "agree        " in out and "unsupported: numpy_renderer: the 'point' emitter" in out
+    assert "agree        " in out and "unsupported: numpy_renderer: the tent pixel filter" in out
+
+
+def test_the_scene_json_renderer_is_caught_when_wrong(tmp_path, capsys, monkeypatch):
+    """The same renderer and check with its image 25% too bright (--scale 1.25): disagree (this small check
+    detects a bias of the image mean of about 10% with 80% power)."""
+    monkeypatch.setenv("VALIDATE_CACHE", str(tmp_path))
+    code = cli.main(["check", str(SCENES / "spot_lights.xml"), "--renderer", NUMPY_RENDERER + " --scale 1.25",
+                     "--jobs", "2", "--label", "numpy", *SMALL])
+    out = capsys.readouterr().out
+    assert code == 1 and "disagree     " in out, out
