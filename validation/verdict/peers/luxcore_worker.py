@@ -13,8 +13,9 @@ The mapping (README "Peers"):
 - one-sided surfaces: a `twosided` LuxCore material with a black matte behind reflection-only materials that
   are not two-sided; area lights emit from the front only (LuxCore's own convention, emission.theta 90);
 - materials: matte (diffuse), mirror (a perfect-mirror conductor), glass (int_ior / ext_ior); other conductors
-  are refused (support.refusal: metal2 at roughness 0, with a fresnelconst texture of eta and k, is not
-  Mitsuba's smooth conductor; reports/peers.md, measured at commit 07b94e6);
+  are refused (support.refusal: LuxCore evaluates a conductor's Fresnel term, in metal2 and in its fresnel
+  textures, by an approximation that departs from the exact complex Fresnel equations where eta < 1; metal2 at
+  roughness 0 renders exactly that approximation; reports/peers.md);
 - camera: LuxCore's lookat camera with a field of view of 90 degrees and the screen window [-tx, tx, -ty, ty]
   of tan_half_fov, so that the image's extent is Mitsuba's whatever LuxCore's own fov convention;
 - output: the RGB film output saved as a linear float EXR.

@@ -55,8 +55,9 @@ def _material(m: dict, peer: str) -> str | None:
     if m["type"] == "conductor" and m["specular_reflectance"] != [1.0, 1.0, 1.0]:
         return "a conductor's specular_reflectance other than 1 has no counterpart"
     if m["type"] == "conductor" and peer == "luxcore" and not mirror(m):
-        return ("a conductor other than a perfect mirror: LuxCore's metal2 at roughness 0 is not the exact Fresnel "
-                "conductor (a gold sphere under uniform light: +2.6% image mean, reports/peers.md)")
+        return ("a conductor other than a perfect mirror: LuxCore's conductor Fresnel term (FresnelTexture::"
+                "GeneralEvaluate, behind metal2 with a fresnelconst texture) is an approximation, up to 16% brighter "
+                "than the exact one for gold (reports/peers.md)")
     if m["type"] == "dielectric" and (m["specular_reflectance"] != [1.0, 1.0, 1.0]
                                       or m["specular_transmittance"] != [1.0, 1.0, 1.0]):
         return "a dielectric's specular_reflectance or specular_transmittance other than 1 has no counterpart"
