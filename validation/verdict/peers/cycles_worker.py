@@ -10,7 +10,8 @@ The mapping (GUIDE, README "Peers"):
   passes' independence), no adaptive sampling, no denoising, no clamping, light
   threshold 0, glossy filter 0, caustics on;
 - pixel filter: box of 1 px (Mitsuba's box, radius 1/2); Mitsuba's gaussian (stddev s, cut at 4 s) as Cycles'
-  gaussian of width 12 s (Cycles' is exp(-2 (6 x / w)^2), stddev w / 12, cut at w / 2 = 6 s);
+  gaussian of width 4 s (Cycles' filter table triples a gaussian's width w before exp(-2 (6 x / 3 w)^2): stddev
+  w / 4, cut at 1.5 w = 6 s; the closest Cycles has);
 - one-sided surfaces and emitters: the Backfacing output selects black (and no emission) behind reflection-
   only materials that are not two-sided; emission sampling from the front only;
 - materials: diffuse as Diffuse BSDF (roughness 0, Lambert), a perfect-mirror conductor as a Glossy BSDF of
@@ -76,7 +77,7 @@ def _settings(scene, data: dict, spp: int, mistake: str | None) -> None:
     if mistake == "default-filter":
         cy.pixel_filter_type, cy.filter_width = "BLACKMAN_HARRIS", 1.5
     elif f["type"] == "gaussian":
-        cy.pixel_filter_type, cy.filter_width = "GAUSSIAN", 12 * f["stddev"]
+        cy.pixel_filter_type, cy.filter_width = "GAUSSIAN", 4 * f["stddev"]
     else:
         cy.pixel_filter_type, cy.filter_width = "BOX", 1.0
     r = scene.render
