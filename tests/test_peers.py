@@ -61,3 +61,21 @@ def test_luxcore_refuses_the_conductors_it_renders_differently(tmp_path, capsys,
     monkeypatch.setenv("VALIDATE_CACHE", str(tmp_path))
     assert cli.main(["check", str(SCENES / "constant_environment.xml"), "--renderer", "luxcore", "--size", "8"]) == 0
     assert "conductor Fresnel term" in capsys.readouterr().out
+
+
+def test_the_peers_report_keeps_the_data_scenes_apart_and_names_a_stopped_check():
+    """reports/peers.md: mitsuba-renderer/mitsuba-data's scenes in a table of their own; a check stopped by the
+    time limit per call is said so, not called a refusal of the check."""
+    from validation.suites.peers import DATA_PREFIX, report
+
+    row = {"renderer": "luxcore", "max_depth": 2, "verdict": "agree", "mean": 0.01, "rejected": 0, "tests": 195,
+           "detectable": 0.03, "seconds": 12.0}
+    stopped = row | {"scene": "mirror.xml", "verdict": "error",
+                     "note": "renderer did not finish pass 0 within --timeout 900 s (stopped)"}
+    text = report([row | {"scene": "cornell_box.xml"}, row | {"scene": DATA_PREFIX + "scenes/cbox/cbox.xml"},
+                   stopped], findings="")
+    ours, data = text.split("### The scenes of mitsuba-renderer/mitsuba-data")
+    assert "| cornell_box.xml | 2 |" in ours and "cbox.xml" not in ours.split("### What")[0]
+    assert f"| {DATA_PREFIX}scenes/cbox/cbox.xml | 2 |" in data
+    assert "| mirror.xml | 2 |  | stopped: over the time limit |" in ours
+    assert "Refused by the check itself" not in text

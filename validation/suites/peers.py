@@ -27,6 +27,7 @@ MISTAKE_SCENES = ("cornell_box.xml", "hexagon_room.xml")
 MITSUBA_LABEL = "Mitsuba (examples/mitsuba_renderer.py)"
 NUMPY_LABEL = "examples/numpy_renderer.py"
 MARKER = "<!-- the investigation below is written by hand; --write keeps it -->"
+DATA_PREFIX = "mitsuba-data: "
 HEADER = """# Peers: Cycles, LuxCoreRender, the tracer and Mitsuba itself, checked against Mitsuba
 
 `python -m validation.suites.peers` (this page: `--write`): `validate check` at its defaults (16 passes x 64 spp
@@ -38,12 +39,12 @@ itself (`examples/mitsuba_renderer.py` reading `{scene_resolved}`, a process per
 """
 
 
-def renderers() -> dict:
+def renderers(timeout: float | None = None) -> dict:
     mitsuba = (f"{sys.executable} {ROOT / 'examples' / 'mitsuba_renderer.py'} {{scene_resolved}} -o {{output}} "
                "--spp {spp} --seed {seed}")
     numpy = (f"{sys.executable} {ROOT / 'examples' / 'numpy_renderer.py'} {{scene_json}} --spp {{spp}} "
              "--seeds {seeds} --outputs {outputs}")
-    return {"cycles": PeerRenderer.named("cycles"), "luxcore": PeerRenderer.named("luxcore"),
+    return {"cycles": PeerRenderer.named("cycles", timeout), "luxcore": PeerRenderer.named("luxcore", timeout),
             "tracer": TracerRenderer("path"),
             "mitsuba": ExternalRenderer(mitsuba, name=MITSUBA_LABEL, jobs=2),
             "numpy": ExternalRenderer(numpy, name=NUMPY_LABEL, jobs=2)}
@@ -56,10 +57,17 @@ def depths(scene: Path, own_only: bool = False) -> list[int | None]:
     return [None] if own_only else [2, 3] + ([None] if own not in (2, 3) else [])
 
 
-def one(scene: Path, renderer, depth: int | None, settings: Settings) -> dict:
+def name(scene: Path, data: Path | None) -> str:
+    """A project scene by its file name; a scene of mitsuba-renderer/mitsuba-data by DATA_PREFIX and its path there."""
+    if data is not None and scene.resolve().is_relative_to(data.resolve()):
+        return DATA_PREFIX + str(scene.resolve().relative_to(data.resolve()))
+    return scene.name
+
+
+def one(scene: Path, renderer, depth: int | None, settings: Settings, data: Path | None = None) -> dict:
     """One check's row: the verdict, the image mean's difference, the detectable bias, the time; or why not."""
     start = time.perf_counter()
-    row = {"scene": scene.name, "renderer": renderer.label, "max_depth": depth}
+    row = {"scene": name(scene, data), "renderer": renderer.label, "max_depth": depth}
     try:
         p = prepare(scene, renderer, depth, None, settings)
         row["max_depth"] = p.max_depth
@@ -81,10 +89,23 @@ def _cell(r: dict | None) -> str:
     if r["verdict"] == "skipped":
         return "skipped"
     if r["verdict"] == "error":
-        return "refused by the check"
+        return "stopped: over the time limit" if "--timeout" in r["note"] else "refused by the check"
     stage = f", stage {r['stage']}" if r.get("stage", 1) > 1 else ""
     return (f"{r['verdict']} ({r['mean']:+.1%}; {r['rejected']}/{r['tests']}; ≤{r['detectable']:.1%}; "
             f"{r['seconds']:.0f} s{stage})")
+
+
+def _table(plain: list[dict], names: dict) -> list[str]:
+    """The verdicts as a Markdown table: a row per scene and max_depth, a column per renderer."""
+    out = ["| scene | max_depth | " + " | ".join(names.values()) + " |", "|---|---:|" + "---|" * len(names)]
+    for scene in sorted({r["scene"] for r in plain}):
+        for depth in sorted({r["max_depth"] for r in plain if r["scene"] == scene and r["max_depth"] is not None},
+                            key=lambda d: (d < 0, d)):
+            cells = [_cell(next((r for r in plain if r["scene"] == scene and r["renderer"] == label and (
+                r["max_depth"] == depth or r["max_depth"] is None and depth not in (2, 3))), None)) for label in names]
+            if any(c not in ("", "skipped") for c in cells):
+                out.append(f"| {scene} | {depth} | " + " | ".join(cells) + " |")
+    return out
 
 
 def report(rows: list[dict], findings: str) -> str:
@@ -92,20 +113,21 @@ def report(rows: list[dict], findings: str) -> str:
     names = {"cycles": "Cycles", "luxcore": "LuxCore", "tracer path": "tracer", MITSUBA_LABEL: "Mitsuba",
              NUMPY_LABEL: "NumPy example"}
     plain = [r for r in rows if "mistake" not in r["renderer"]]
-    scenes = sorted({r["scene"] for r in plain})
+    ours = [r for r in plain if not r["scene"].startswith(DATA_PREFIX)]
+    data = [r for r in plain if r["scene"].startswith(DATA_PREFIX)]
     out = [HEADER, "## Verdicts", "",
            "Each cell: the verdict (image mean's difference from Mitsuba; tests rejected / tests; the bias of the "
            "image mean the check detects with 80% power, worst channel; the check's time). Scenes that a peer "
-           "cannot express are listed after the table.", "",
-           "| scene | max_depth | " + " | ".join(names.values()) + " |", "|---|---:|" + "---|" * len(names)]
-    for scene in scenes:
-        for depth in sorted({r["max_depth"] for r in plain if r["scene"] == scene and r["max_depth"] is not None},
-                            key=lambda d: (d < 0, d)):
-            cells = [_cell(next((r for r in plain if r["scene"] == scene and r["renderer"] == label and (
-                r["max_depth"] == depth or r["max_depth"] is None and depth not in (2, 3))), None)) for label in names]
-            if any(c not in ("", "skipped") for c in cells):
-                out.append(f"| {scene} | {depth} | " + " | ".join(cells) + " |")
-    refused = sorted({(r["scene"], r["note"]) for r in plain if r["verdict"] == "error"})
+           "cannot express are listed after the table.", ""]
+    out += _table(ours, names)
+    if data:
+        out += ["", "### The scenes of mitsuba-renderer/mitsuba-data the peers can express", "",
+                "The same checks on every scene of that repository that the tracer's loader reads and Cycles or "
+                "LuxCore can express (paths in that repository).", ""]
+        out += _table(data, names)
+    scenes = sorted({r["scene"] for r in plain})
+    refused = sorted({(r["scene"], r["note"]) for r in plain
+                      if r["verdict"] == "error" and "--timeout" not in r["note"]})
     if refused:
         out += ["", "Refused by the check itself (for every renderer): " + "; ".join(f"{s}: {n}" for s, n in refused)]
     out += ["", "### What the peers cannot express (skipped before any pass)", "", "| scene | reason |", "|---|---|"]
@@ -134,6 +156,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", nargs="+", choices=("cycles", "luxcore", "tracer", "mitsuba", "numpy",
                                                         "mistakes"))
     ap.add_argument("--own-depth", action="store_true", help="only at each scene's own max_depth")
+    ap.add_argument("--data", type=Path, help="the mitsuba-renderer/mitsuba-data checkout the --scenes come from "
+                    "(their rows name them by their path there)")
+    ap.add_argument("--timeout", type=float, default=900.0,
+                    help="the most one peer's call may take (seconds; default 900): a check whose samples per pass "
+                         "rise past what a peer renders in that time is stopped and reported as such")
     ap.add_argument("--write", action="store_true", help="only write the Markdown from the JSON")
     args = ap.parse_args(argv)
     store = args.output.with_suffix(".json")
@@ -146,21 +173,23 @@ def main(argv: list[str] | None = None) -> int:
     done = {(r["scene"], r["renderer"], r.get("asked_depth")) for r in rows}
     settings = Settings()
     todo = []
-    for name, renderer in renderers().items():
-        if args.only and name not in args.only:
+    for label, renderer in renderers(args.timeout).items():
+        if args.only and label not in args.only:
             continue
         for scene in args.scenes:
             todo += [(scene, renderer, d) for d in depths(scene, args.own_depth)]
     if not args.only or "mistakes" in args.only:
         for peer in ("cycles", "luxcore"):
             for mistake in MISTAKES:
-                todo += [(ROOT / "mitsuba_scenes" / s, PeerRenderer.named(peer, mistake=mistake), None)
+                todo += [(ROOT / "mitsuba_scenes" / s, PeerRenderer.named(peer, args.timeout, mistake), None)
                          for s in MISTAKE_SCENES]
     for scene, renderer, depth in todo:
-        if (scene.name, renderer.label, depth) in done:
+        if (name(scene, args.data), renderer.label, depth) in done:
             continue
-        row = one(scene, renderer, depth, settings) | {"asked_depth": depth}
+        row = one(scene, renderer, depth, settings, args.data) | {"asked_depth": depth}
         row["note"] = row.get("note", "").replace(f"{ROOT}/", "")        # paths relative to the repository
+        if args.data is not None:
+            row["note"] = row["note"].replace(f"{args.data.resolve()}/", "")
         print(json.dumps(row), flush=True)
         rows.append(row)
         store.write_text(json.dumps(rows, indent=1))
