@@ -12,7 +12,7 @@ dying late (an index overflow after hours, the kernel's out-of-memory killer, a 
   its copies and sampling tables), the film (four sums per pixel, with the filter's border), the developed
   image and its copies for the outputs, and the working set of one launch: the path tracer's lanes, or
   the branching estimator's widest level of its ray tree (its lanes and the children array it spawns).
-  A path tracer in one kernel holds a few registers per lane; bounce by bounce (a scene with a BVH,
+  A path tracer in one kernel holds a few registers per lane; bounce by bounce (a scene with a mesh BVH,
   integrators.path) it holds each path's state and its rays in memory. Per-lane figures were measured
   (peak RSS of 2^21 against 2^19 path lanes, on hexagon_room and on validate bench's 249,354-triangle
   scene; of the report estimator at 128 x 128, max_depth 4, M = 8) and rounded up; they are estimates,

@@ -14,7 +14,8 @@ from .compile_clock import CompileClock
 from .errors import OutOfMemory, SettingsError
 from .estimators import BranchingEstimator, PathEstimator, integer, make_estimator
 from .film import FILTERS, Film, ReconstructionFilter
-from .geometry import SceneGeometry, goes_bounce_by_bounce, uses_bvh
+from .geometry import SceneGeometry, goes_bounce_by_bounce
+from .shapes import MeshSet
 from .jit import BACKEND, PRECISION
 from .launch import seed_state
 from .plan import TEXEL_BYTES, TRIANGLE_BYTES, Plan, available_memory, gib, plan_render
@@ -160,7 +161,7 @@ def make_plan(scene: Scene, spp: int, estimator: PathEstimator | BranchingEstima
     elif geometry is not None:
         extra = {"wavefront": geometry.bounce_by_bounce}
     else:
-        extra = {"wavefront": goes_bounce_by_bounce(uses_bvh(scene))}
+        extra = {"wavefront": goes_bounce_by_bounce(MeshSet.uses_bvh(scene.triangle_count))}
     return plan_render(width, height, spp, estimator.name, estimator.max_depth, border=border,
                        float_bytes=8 if PRECISION == "double" else 4, images=images, scene_bytes=scene_bytes(scene),
                        max_pass_samples=width * height if one_spp_passes else None, **extra)

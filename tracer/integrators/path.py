@@ -67,7 +67,7 @@ class PathState:
 
 def path_radiance(geo: SceneGeometry, o: Array3f, d: Array3f, t_min: Float, t_max: Float, rng: PCG32,
                   max_depth: UInt32, rr_depth: UInt32, strategies: Strategies = PATH) -> tuple[Array3f, UInt32]:
-    """Radiance along each camera ray and the number of rays each path traced. With a BVH the paths go
+    """Radiance along each camera ray and the number of rays each path traced. With a mesh BVH the paths go
     bounce by bounce (_wavefront, where SceneGeometry.bounce_by_bounce), else in one kernel
     (_megakernel); each lane's path is the same. `strategies`: the samples of each strategy of direct
     lighting (Mitsuba's `direct` integrator is this path tracer at max_depth 2 with its own counts)."""
@@ -77,7 +77,7 @@ def path_radiance(geo: SceneGeometry, o: Array3f, d: Array3f, t_min: Float, t_ma
 
 def trace_paths(geo: SceneGeometry, rng: PCG32, path, bounce, *args) -> tuple[Array3f, UInt32]:
     """Runs bounce(geo, rng, path, *args) until no lane of `path` (a Dr.Jit struct with `L`, `rays` and
-    `active`) is active; returns its L and rays. With a BVH the paths go bounce by bounce (_wavefront, where
+    `active`) is active; returns its L and rays. With a mesh BVH the paths go bounce by bounce (_wavefront, where
     SceneGeometry.bounce_by_bounce), else in one kernel (_megakernel); each lane's path is the same."""
     trace = _wavefront if geo.bounce_by_bounce else _megakernel
     return trace(geo, rng, path, bounce, *args)
