@@ -3,6 +3,7 @@ exit codes for CI (0 all agree, 1 any disagrees, 3 any inconclusive and none dis
 `validate calibrate`: the check's measured false-alarm rate and power (reports/calibration.md);
 `validate stability`: the numerical stability suite (reports/stability.md);
 `validate coverage DIR`: the tracer on Mitsuba's own scenes (reports/mitsuba_scenes.md);
+`validate media DIR`: every media scene of Mitsuba's data against Mitsuba at two depths (reports/media.md);
 `validate mitsuba-tests DIR`: Mitsuba's render tests with Mitsuba's protocol (reports/mitsuba_tests.md);
 `validate report SCENE.xml [--quick] [--size N]`: run (or resume) the sweeps and write the report;
 `validate reference SCENE.xml --max-depth D --size N`: render or load one cached Mitsuba reference;
@@ -53,6 +54,11 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument("--output", "-o", type=Path, default=Path("reports/mitsuba_scenes.md"))
     v.add_argument("--no-check", action="store_true", help="only load the scenes (no renders)")
     _suite_options(v)
+    md = sub.add_parser("media", help="write reports/media.md: every media scene of a local copy of "
+                        "mitsuba-renderer/mitsuba-data checked against Mitsuba at max_depth 3 and at its own depth")
+    md.add_argument("mitsuba_data", type=Path, metavar="MITSUBA_DATA_DIR")
+    md.add_argument("--output", "-o", type=Path, default=Path("reports/media.md"))
+    _suite_options(md)
     t = sub.add_parser("mitsuba-tests", help="write reports/mitsuba_tests.md: Mitsuba's own render tests "
                        "(tests/scenes of a local copy of mitsuba-renderer/mitsuba-data) taken by the tracer, and by "
                        "Mitsuba, with Mitsuba's protocol; exit 1 if a test the tracer renders fails",
@@ -444,6 +450,17 @@ def _run(args) -> int:
         with _session(args) as runner:
             print(report(args.mitsuba_data, args.output, command_line(args.argv, args.mitsuba_data), not args.no_check,
                          runner))
+        return 0
+    if args.command == "media":
+        from .suites.media import MEDIA_FOLDER, report
+        from .reports.provenance import command_line
+        from .verdict.scenefile import ScenePlanError
+
+        if not (args.mitsuba_data / MEDIA_FOLDER).is_dir():
+            raise ScenePlanError(f"'{args.mitsuba_data}' has no {MEDIA_FOLDER} folder: expected a copy of "
+                                 "mitsuba-renderer/mitsuba-data")
+        with _session(args) as runner:
+            print(report(args.mitsuba_data, args.output, command_line(args.argv, args.mitsuba_data), runner))
         return 0
     if args.command == "mitsuba-tests":
         from .suites.mitsuba_tests import SCENES, report
