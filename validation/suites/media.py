@@ -28,8 +28,8 @@ from .runner import NONE, Runner, Unit, session
 MEDIA_FOLDER = "tests/scenes/participating_media"
 DEPTHS = (3, None)          # None: the scene's own max_depth
 SIZE = 16
-SPP = 128
-MAX_SPP = 512
+SPP = 64
+MAX_SPP = 256
 
 # What was found about a disagreement, by scene (relative to the data's folder); the report quotes it.
 CAUSES: dict[str, str] = {}
