@@ -105,11 +105,22 @@ def _integrate_cells(pdf, res: int, n: int, cells: np.ndarray) -> np.ndarray:
     phi = -np.pi + (col[:, None, None] + t[None, None, :]) * d_phi           # (cells, 1, n)
     z, phi = np.broadcast_arrays(z, phi)
     s = np.sqrt(np.maximum(0.0, 1.0 - z * z))
-    d = Array3f(Float((s * np.cos(phi)).ravel()), Float((s * np.sin(phi)).ravel()), Float(z.ravel()))
+    d = Array3f(floats(s * np.cos(phi)), floats(s * np.sin(phi)), floats(z))
     values = np.asarray(pdf(d).numpy(), dtype=np.float64).reshape(len(cells), n, n)
     values = np.nan_to_num(values, nan=np.inf)      # a NaN density must not pass unnoticed
     w = weights[:, None] * weights[None, :] * 0.25 * d_phi * d_z
     return np.einsum("cij,ij->c", values, w)
+
+
+def floats(values: np.ndarray) -> Float:
+    """A Float holding `values` (flattened) from a 64-byte aligned copy. Dr.Jit maps a NumPy array's memory and
+    compiles a kernel for its alignment: arrays of arbitrary alignment would compile a kernel per call."""
+    values = np.asarray(values, dtype=np.float32).ravel()
+    buffer = np.empty(values.size + 16, dtype=np.float32)
+    start = (-buffer.ctypes.data % 64) // 4
+    out = buffer[start:start + values.size]
+    out[:] = values
+    return Float(out)
 
 
 def _pooled_statistic(observed: np.ndarray, expected: np.ndarray, quadrature_var: np.ndarray) -> tuple[float, int]:

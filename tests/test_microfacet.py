@@ -12,6 +12,7 @@ import pytest
 from tracer.jit import Array3f, Bool, Float
 from tracer.materials.microfacet import microfacet
 
+from .chi2 import floats
 from .microfacet_cases import Case, direction, unit
 
 N = 4000
@@ -31,7 +32,7 @@ def mi():
 
 
 def arrays(v: np.ndarray):
-    return Array3f(*(Float(np.ascontiguousarray(c, dtype=np.float32)) for c in v))
+    return Array3f(*(floats(c) for c in v))
 
 
 def close(ours, theirs, rtol=RTOL, atol=ATOL) -> bool:

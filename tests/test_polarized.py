@@ -16,6 +16,7 @@ from tracer.materials.microfacet import microfacet
 from validation.verdict.protocol import ALPHA
 from validation.verdict.stats import compare_passes
 
+from .bsdf_properties import albedo, assert_weight_is_eval_over_pdf, reciprocity, upper_pairs
 from .chi2 import chi2_sphere, sidak
 from .conftest import PASSES, SIZE, SPP, mitsuba_passes, plugin_passes
 from .microfacet_cases import direction
@@ -55,6 +56,29 @@ def test_pplastic_sampling_follows_its_pdf(distr, weight, angles):
 def test_chi2_rejects_a_sampler_of_another_lobe_weight():
     result = _chi2(CONFIGS[0][0], 0.4, CONFIGS[0][2], sample_weight=0.6)
     assert not result.passes(sidak(LEVEL, len(CONFIGS))), str(result)
+
+
+@pytest.mark.parametrize("distr, weight, angles", CONFIGS)
+def test_pplastic_weight_is_eval_over_pdf(distr, weight, angles):
+    wi, _ = upper_pairs(4000, 1)
+    assert_weight_is_eval_over_pdf(pplastic, _params(distr, weight), wi)
+
+
+def test_pplastic_is_reciprocal():
+    wi, wo = upper_pairs(4000, 2)
+    forward, backward = reciprocity(pplastic, _params(CONFIGS[1][0], 0.5), wi, wo)
+    assert np.count_nonzero(forward) > 1000 and np.allclose(backward, forward, rtol=2e-3, atol=1e-5)
+
+
+def test_pplastic_white_furnace():
+    """A white pplastic (diffuse and specular reflectance 1) reflects at most what it receives, at normal to
+    grazing incidence (the mean sample weight; bound 1 + 4.5 standard errors; the same bound fails on the
+    smooth plastic without its exit Fresnel factor: tests/test_bsdf_contract.py)."""
+    for distr, _, _ in CONFIGS:
+        p = replace(_params(distr, 0.5), diffuse_reflectance=Array3f(1.0), specular_reflectance=Array3f(1.0))
+        for theta in (0.0, 60.0, 85.0):
+            mean, error = albedo(pplastic, p, np.repeat(direction(theta)[:, None], 50_000, axis=1))
+            assert np.all(mean <= 1.0 + 4.5 * error) and np.all(mean > 0.1), (distr, theta, mean, error)
 
 
 def compared(seed: int, edit=None):

@@ -16,6 +16,7 @@ from tracer.jit import Array3f, Bool, Float
 from tracer.materials import principled
 from tracer.materials.principled import PrincipledParams
 
+from .bsdf_properties import assert_weight_is_eval_over_pdf, reciprocity, upper_pairs
 from .chi2 import chi2_sphere, sidak
 from .microfacet_cases import direction
 from .test_microfacet import ATOL, RTOL, N, arrays, close, mi, random_directions  # noqa: F401 (mi: the fixture)
@@ -128,6 +129,22 @@ def test_white_furnace(roughness):
             energy = np.asarray(weight.numpy())[0] * np.asarray(bs.eta.numpy()) ** 2
             mean, error = energy.mean(), energy.std() / np.sqrt(n)
             assert 0.1 < mean <= 1.0 + 4 * error, f"{config} at {theta}: {mean:.4f} +- {error:.4f}"
+
+
+@pytest.mark.parametrize("config", CONFIGS, ids=range(len(CONFIGS)))
+def test_weight_is_eval_over_pdf(config):
+    """From above and (where it transmits) below: a non-delta sample's weight is eval / pdf, its pdf pdf()."""
+    wi, _ = random_directions(11, upper="spec_trans" not in config)
+    assert_weight_is_eval_over_pdf(principled, params(config, N), wi)
+
+
+@pytest.mark.parametrize("config", [0, 1])
+def test_reflection_is_reciprocal(config):
+    """The reflecting configurations (every lobe but transmission: diffuse with retro-reflection, sheen,
+    clearcoat, anisotropic metal) are symmetric in wi and wo."""
+    wi, wo = upper_pairs(N, 12)
+    forward, backward = reciprocity(principled, params(CONFIGS[config], N), wi, wo)
+    assert np.count_nonzero(forward) > N // 2 and np.allclose(backward, forward, rtol=2e-3, atol=1e-5)
 
 
 def test_eta_and_specular(tmp_path):

@@ -14,6 +14,7 @@ from tracer.jit import Array2f, Array3f, Bool, Float
 from tracer.materials import principledthin as thin
 from tracer.materials.principled import PrincipledParams
 
+from .bsdf_properties import assert_weight_is_eval_over_pdf
 from .chi2 import chi2_sphere, sidak
 from .microfacet_cases import direction
 from .test_microfacet import ATOL, RTOL, N, arrays, close, mi, random_directions  # noqa: F401 (mi: the fixture)
@@ -84,6 +85,13 @@ def test_chi2_fails_with_the_transmission_roughness_unscaled():
     config = dict(CONFIGS[2], spec_trans=0.9)
     result = chi2(config, 50.0, sample_config=dict(config, eta=1.35 / 0.65))
     assert not result.passes(sidak(LEVEL, len(CHI2))), str(result)
+
+
+@pytest.mark.parametrize("config", CONFIGS, ids=range(len(CONFIGS)))
+def test_weight_is_eval_over_pdf(config):
+    """From both sides: a non-delta sample's weight is eval / pdf, its pdf pdf()."""
+    wi, _ = random_directions(13, upper=False)
+    assert_weight_is_eval_over_pdf(thin, params(config, N), wi)
 
 
 def test_white_furnace():
