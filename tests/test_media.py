@@ -19,7 +19,8 @@ Each comparison is a z-test of the image's mean (its standard error from the 256
 the mean of 64 independent paths) at |z| < Z: 8 comparisons of 3 channels, each mean's z a Student t of
 255 degrees of freedom (P(|t| > 4.5) = 1e-5), a false-positive rate of 2.5e-4 for the module; each slab
 test also shows that the figure a typical mistake predicts (the scale ignored, a phase function's g of the
-opposite sign) lies outside it. The furnace's last case takes Mitsuba's other weights (has_spectral_extinction
+opposite sign) lies outside it, and the furnace fails when shadow rays cross the medium without its
+transmittance. The furnace's last case takes Mitsuba's other weights (has_spectral_extinction
 false) and no shadow rays from the medium (sample_emitters false)."""
 from __future__ import annotations
 
@@ -116,7 +117,7 @@ def furnace_scene(tmp_path, medium: str, phase: str):
     return write_scene(tmp_path, body, header=header)
 
 
-@pytest.mark.parametrize("medium, phase", [
+FURNACES = [
     ('type="homogeneous"><float name="sigma_t" value="1.5"/>', ""),
     ('type="homogeneous"><rgb name="sigma_t" value="0.5, 1, 2"/>', '<phase type="hg"><float name="g" value="0.7"/></phase>'),
     ('type="heterogeneous"><volume type="gridvolume" name="sigma_t"><string name="filename" value="density.vol"/>'
@@ -126,11 +127,26 @@ def furnace_scene(tmp_path, medium: str, phase: str):
      '<boolean name="sample_emitters" value="false"/><volume type="gridvolume" name="sigma_t">'
      '<string name="filename" value="density.vol"/><transform name="to_world"><translate value="-0.5, -0.5, -0.5"/>'
      '<scale value="4"/></transform></volume>', ""),
-], ids=["homogeneous", "chromatic-hg", "grid-hg", "grid-no-spectral-no-nee"])
+]
+
+
+@pytest.mark.parametrize("medium, phase", FURNACES, ids=["homogeneous", "chromatic-hg", "grid-hg",
+                                                          "grid-no-spectral-no-nee"])
 def test_white_furnace(tmp_path, medium, phase):
     write_vol(tmp_path / "density.vol", np.random.default_rng(1).uniform(0, 3, (6, 5, 4, 1)))
     image = render(tracer.load_scene(furnace_scene(tmp_path, medium, phase))).image
     assert_close(image, np.ones(3))
+
+
+def test_furnace_fails_when_shadow_rays_ignore_the_medium(tmp_path, monkeypatch):
+    """Power: shadow rays that cross the fog without its transmittance (ratio tracking left out: the light
+    reached through a medium as through vacuum) brighten the furnace beyond its bound."""
+    from tracer.integrators import volpath
+
+    monkeypatch.setattr(volpath, "_segment", volpath._vacuum)
+    image = render(tracer.load_scene(furnace_scene(tmp_path, FURNACES[0][0], FURNACES[0][1]))).image
+    mean, error = mean_and_error(image)
+    assert np.all((mean - 1.0) / np.maximum(error, 1e-7) > Z), (mean, error)
 
 
 def test_media_are_read_as_mitsuba_reads_them(tmp_path):
