@@ -35,6 +35,20 @@ def test_finds_the_media_scenes_and_reports_a_refusal(tmp_path):
     assert str(tmp_path) not in out.line
 
 
+def test_an_interrupted_run_resumes(tmp_path, monkeypatch):
+    """Outcomes are kept as they arrive: a second run of the same scenes and tracer renders nothing again."""
+    miniature(tmp_path / "data")
+    monkeypatch.setattr(media, "RESULTS", tmp_path / "kept")
+    scene = tmp_path / "data" / media.MEDIA_FOLDER / "test_rayleigh_volpath.xml"
+    first = media.survey(tmp_path / "data", paths=[scene])
+    assert [o.verdict for o in first] == ["refused", "refused"] and len(list((tmp_path / "kept").glob("*.json"))) == 2
+
+    def rendered_again(*args):
+        raise AssertionError("rendered again")
+    monkeypatch.setattr(media, "check_scene", rendered_again)
+    assert media.survey(tmp_path / "data", paths=[scene]) == first
+
+
 def test_the_report_states_verdicts_biases_and_causes(monkeypatch):
     monkeypatch.setitem(media.CAUSES, "b.xml", "the backdrop's texture")
     outcomes = [MediaOutcome("a.xml", 3, "agree", "agree a.xml ...", 3, 0.001, 0.021, 10.0),

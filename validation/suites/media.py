@@ -9,11 +9,14 @@ the docs' subsurface scenes: multiple scattering). Each check is `validate check
 escalated in stages when undecided) at SIZE pixels on the longer side, 16 passes of SPP spp up to MAX_SPP;
 each verdict line states the bias it could have missed (its detectable image-mean bias at the check's
 power). A scene the tracer refuses is listed with its refusal. Paths are relative to the data's folder.
-Results are computed first (reports/media.json), formatted second (reports/media.md), with the causes of
-any disagreement found so far (CAUSES)."""
+Each outcome is kept in RESULTS as it arrives (an interrupted run resumes); results are computed first
+(reports/media.json), formatted second (reports/media.md), with the causes of any disagreement found so far
+(CAUSES)."""
 from __future__ import annotations
 
 import glob
+import hashlib
+import json
 import re
 import time
 from contextlib import nullcontext
@@ -28,8 +31,9 @@ from .runner import NONE, Runner, Unit, session
 MEDIA_FOLDER = "tests/scenes/participating_media"
 DEPTHS = (3, None)          # None: the scene's own max_depth
 SIZE = 16
-SPP = 64
-MAX_SPP = 256
+SPP = 32
+MAX_SPP = 128
+RESULTS = Path(".cache/media")   # each check's outcome, kept as it arrives: an interrupted run resumes
 
 # What was found about a disagreement, by scene (relative to the data's folder); the report quotes it.
 CAUSES: dict[str, str] = {}
@@ -87,22 +91,40 @@ def check_scene(path: Path, root: Path, max_depth: int | None, files: dict[str, 
     return out, rendered
 
 
+def tracer_source() -> str:
+    """A digest of the tracer's source files (read here: this process imports neither Dr.Jit nor Mitsuba)."""
+    root, h = Path(__file__).resolve().parents[2] / "tracer", hashlib.sha256()
+    for f in sorted(root.rglob("*.py")):
+        h.update(f.relative_to(root).as_posix().encode() + f.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def survey(root: Path, runner: Runner | None = None, paths: list[Path] | None = None) -> list[MediaOutcome]:
     """Every media scene (or those of `paths`) at every depth, as units of one suite on `runner` (default: in
-    this process); the references rendered are written to the cache here as the results arrive."""
+    this process); the references rendered and each outcome are written here as the results arrive, and an
+    outcome kept from an earlier run of the same scene files, settings and tracer source is reused."""
     from ..verdict.references import cache_folder, write_files
 
-    cache = cache_folder()
+    cache, source = cache_folder(), tracer_source()
     paths = media_scenes(root) if paths is None else paths
 
     def cached(path: Path) -> dict[str, bytes]:
         return {f.name: f.read_bytes() for f in cache.glob(f"{glob.escape(path.stem)}-d*.npz")}
 
-    units = [Unit(f"media-{p.relative_to(root)}-{depth}-{files_digest(p)[:16]}", check_scene,
-                  (p, root, depth, cached(p))) for p in paths for depth in DEPTHS]
+    def kept(unit: Unit) -> Path:
+        return RESULTS / (hashlib.sha256(unit.key.encode()).hexdigest()[:24] + ".json")
+
+    def arrived(unit: Unit, result) -> None:
+        write_files(cache, result[1])
+        write_json(kept(unit), asdict(result[0]))
+
+    units = [Unit(f"media-{p.relative_to(root)}-{depth}-{files_digest(p)[:16]}-{SIZE}-{SPP}-{MAX_SPP}-{source}",
+                  check_scene, (p, root, depth)) for p in paths for depth in DEPTHS]
+    done = {u.key: MediaOutcome(**json.loads(kept(u).read_text())) for u in units if kept(u).is_file()}
+    todo = [Unit(u.key, u.fn, u.args + (cached(u.args[0]),)) for u in units if u.key not in done]
     with (nullcontext(runner) if runner is not None else session(NONE)) as r:
-        results = r.run(units, "media scenes", lambda unit, result: write_files(cache, result[1]))
-    return [results[u.key][0] for u in units]
+        results = r.run(todo, "media scenes", arrived)
+    return [done[u.key] if u.key in done else results[u.key][0] for u in units]
 
 
 def _depth(o: MediaOutcome) -> str:
