@@ -310,3 +310,17 @@ def test_report_estimator_refuses_mesh_attributes(tmp_path):
     (tmp_path / "scene.xml").write_text(AGREEMENT_SCENE)
     (line,) = tracer.load_scene(tmp_path / "scene.xml").estimator_refusals("report")
     assert "mesh_attribute" in line and "--estimator path" in line
+
+
+@pytest.mark.parametrize("pairs", [("texture_s", "texture_t"), ("s", "t", "texture_u", "texture_v"),
+                                   ("u", "v", "s", "t")])
+def test_texture_coordinates_are_the_pair_mitsuba_reads(tmp_path, mi, pairs):
+    """u, v, else texture_u, texture_v, else s, t (Mitsuba 3.9.1 reads no texture_s, texture_t)."""
+    fields = {k: RNG.random((N + 1) ** 2).astype(np.float32) for k in pairs}
+    path = write_ply(tmp_path / "uv.ply", fields, {})
+    ours = read_ply(path)[3]
+    theirs = mi.load_dict({"type": "ply", "filename": str(path)})
+    if not theirs.has_vertex_texcoords():
+        assert ours is None
+    else:
+        assert np.array_equal(np.array(mi.traverse(theirs)["vertex_texcoords"]), ours.astype(np.float32).ravel())

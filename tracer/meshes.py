@@ -370,7 +370,8 @@ def length_rows(a: np.ndarray) -> np.ndarray:
     return np.sqrt(dot_rows(a, a))[None]
 
 
-PLY_TEXCOORDS = (("u", "v"), ("s", "t"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))  # Mitsuba's
+# the texture coordinates' pairs Mitsuba 3.9.1's ply reads, the first present (it reads no texture_s, texture_t)
+PLY_TEXCOORDS = (("u", "v"), ("texture_u", "texture_v"), ("s", "t"))
 
 
 def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, Attributes]:
@@ -435,15 +436,12 @@ def _read_ply(path: Path, size: int, mtime_ns: int) -> tuple[np.ndarray, np.ndar
     return vertices, faces, normals, uvs, attributes
 
 
-MITSUBA_TEXCOORDS = (("u", "v"), ("texture_u", "texture_v"), ("s", "t"))   # the pair Mitsuba's ply reads, in order
-
-
 def _attributes(vertex, face, index: str) -> Attributes:
     """The vertex and face attributes of a PLY file's elements (plyfile's), as Mitsuba names them."""
     from plyfile import PlyListProperty
 
     names = vertex.data.dtype.names
-    texcoords = next((set(pair) for pair in MITSUBA_TEXCOORDS if all(k in names for k in pair)), set())
+    texcoords = next((set(pair) for pair in PLY_TEXCOORDS if all(k in names for k in pair)), set())
     out, unread = {}, []
     elements = ((vertex, "vertex_", VERTEX_RESERVED | texcoords), (face, "face_", FACE_RESERVED | {index}))
     for element, kind, reserved in elements:

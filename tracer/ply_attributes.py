@@ -93,14 +93,15 @@ def read(data: np.ndarray, properties: list[tuple[str, bool]], element: str, res
     """The attributes of an element's rows `data` (a structured array), its properties in file order as
     (name, is a list)."""
     if element == "face_" and (taken := FACE_RESERVED & {name for name, _ in properties}):
-        raise Refused(f"a face property named '{min(taken)}', Mitsuba's name of a face index (Mitsuba refuses the file)")
+        raise Refused(f"a face property named '{min(taken)}', Mitsuba's name of a face index (Mitsuba refuses "
+                      "the file)")
     names = [None if is_list and name not in reserved else name for name, is_list in properties]
     found, unread = groups(names, element, reserved)
     values = {}
     for name, fields in found:
         if name in values:
-            raise Refused(f"two groups of {element[:-1]} properties give the attribute '{name}' "
-                                  "(Mitsuba refuses the file)")
+            raise Refused(f"two groups of {element[:-1]} properties give the attribute '{name}' (Mitsuba refuses "
+                          "the file)")
         a = np.stack([np.asarray(data[f], np.float32) for f in fields], axis=1).reshape(len(data), len(fields))
         a.flags.writeable = False
         values[name] = a
