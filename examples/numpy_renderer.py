@@ -179,10 +179,19 @@ class Scene:
         closer = tj < best[rays]
         best[rays[closer]], which[rays[closer]] = tj[closer], first + j[closer]
 
-    def occluded(self, p: np.ndarray, n: np.ndarray, wi: np.ndarray, dist: np.ndarray) -> np.ndarray:
-        """Whether anything lies between p (offset along n) and the point at `dist` along wi."""
-        t, _, _ = self.intersect(p + EPS * n, wi, dist - 2 * EPS)
-        return t < dist - 2 * EPS
+    def occluded(self, p: np.ndarray, n: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """Whether anything lies between p, offset along n, and the points `target`. The segment starts at the
+        offset point: a ray from there parallel to target - p would meet the target's plane EPS / cos sooner,
+        and at grazing angles take the emitter itself for a blocker."""
+        o = p + EPS * n
+        to = target - o
+        dist = np.linalg.norm(to, axis=1)
+        t, _, _ = self.intersect(o, to / dist[:, None], dist - EPS)
+        return t < dist - EPS
+
+    def occluded_towards(self, p: np.ndarray, n: np.ndarray, wi: np.ndarray) -> np.ndarray:
+        """Whether anything lies along wi from p (offset along n): a light at infinity's shadow ray."""
+        return self.intersect(p + EPS * n, wi)[2]
 
     def surface(self, p: np.ndarray, which: np.ndarray):
         """(geometric normal, material index, emitted radiance) at hits."""
@@ -295,12 +304,12 @@ class Scene:
             wi = to / dist[:, None]
             cos_x = np.einsum("rk,rk->r", wi, n)
             falloff = np.ones(len(p)) if cone is None else spot_falloff(-wi, *cone)
-            ok = (cos_x > 0) & (falloff > 0) & ~self.occluded(p, n, wi, dist)
+            ok = (cos_x > 0) & (falloff > 0) & ~self.occluded(p, n, np.broadcast_to(position, p.shape))
             out += intensity * np.where(ok, falloff * cos_x / (np.pi * dist * dist), 0)[:, None]
         for direction, irradiance in self.directionals:
             wi = np.broadcast_to(-direction, p.shape)
             cos_x = np.einsum("rk,rk->r", wi, n)
-            ok = (cos_x > 0) & ~self.occluded(p, n, wi, np.full(len(p), np.inf))
+            ok = (cos_x > 0) & ~self.occluded_towards(p, n, wi)
             out += irradiance * np.where(ok, cos_x / np.pi, 0)[:, None]
         if self.light_cdf is not None:
             out += self.area_light(p, n, rng)
@@ -328,7 +337,7 @@ class Scene:
         cos_x = np.einsum("rk,rk->r", wi, n)
         cos_y = -np.einsum("rk,rk->r", wi, ny)                # the emitter's front faces the point
         ok = (cos_x > 0) & (cos_y > 0)
-        ok[ok] &= ~self.occluded(p[ok], n[ok], wi[ok], dist[ok])
+        ok[ok] &= ~self.occluded(p[ok], n[ok], y[ok])
         g = np.where(ok, cos_x * cos_y / np.maximum(dist * dist, 1e-30), 0)
         return radiance * (g * self.light_area / np.pi)[:, None]
 
