@@ -762,8 +762,8 @@ def room_profile_markdown(p: dict | None) -> list[str]:
     lines = [f"The path tracer on the room ({s['size']} x {s['size']}, {s['spp']} spp, max_depth {s['max_depth']}; "
              f"{full['rays'] / 1e6:.1f} M rays: {v['no_nee']['rays'] / 1e6:.1f} M closest hits, the rest shadow rays), "
              "in the process that measured the ceiling again (the fastest of its renders and of its launches): "
-             f"**{wall_rate / c['rays_per_second']:.2f}** of the ceiling in wall time ({wall_rate / 1e6:.0f} M "
-             f"against {c['rays_per_second'] / 1e6:.0f} M rays/s), **{cpu_rate / c['rays_per_cpu_second']:.2f}** in "
+             f"**{wall_rate / c['rays_per_second']:.2f}** of the ceiling in wall time ({wall_rate / 1e6:.1f} M "
+             f"against {c['rays_per_second'] / 1e6:.1f} M rays/s), **{cpu_rate / c['rays_per_cpu_second']:.2f}** in "
              f"CPU time ({cpu_rate / 1e6:.1f} M against {c['rays_per_cpu_second'] / 1e6:.1f} M rays per CPU second). "
              "Its CPU seconds by phase, measured by ablation (each variant rendered in turn, the fastest of "
              f"{s['rounds']} renders; `validation/benchmark/room_profile.py` says how each phase is derived):", "",
@@ -772,7 +772,9 @@ def room_profile_markdown(p: dict | None) -> list[str]:
     lines += [f"| the render | {t['full']:.3f} | 100% |", "",
               "Ray queries are the first two rows; for the path tracer to reach 0.75 of the ceiling, everything "
               f"else would have to take at most {max(full['rays'] / (0.75 * c['rays_per_cpu_second']) - t['closest-hit queries'] - t['shadow-ray queries'], 0):.3f} "
-              "CPU s.", ""]
+              "CPU s. In one kernel a lane's masked-off code runs with its packet: each path's last vertex "
+              "(depth + 1 = max_depth) samples a light, tests a shadow ray and samples its BSDF for no path, one "
+              f"vertex's shading in {s['max_depth']}.", ""]
     return lines
 
 
