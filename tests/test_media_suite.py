@@ -62,6 +62,7 @@ def test_the_report_states_verdicts_biases_and_causes(monkeypatch):
     assert "| b.xml | 3 | disagree | -20.00% | 5.0% | 11 |" in text
     assert "could have missed: 5.0%" in text
     assert "- b.xml: the backdrop's texture" in text and "agree a.xml ..." in text
+    assert "refused      c.xml [max_depth 3]: unsupported integrator plugin 'volpathmis'" in text
 
 
 def test_the_command_refuses_a_folder_that_is_not_mitsuba_data(tmp_path, capsys):

@@ -132,6 +132,14 @@ def _depth(o: MediaOutcome) -> str:
     return f"{o.depth} ({own})" if own and o.depth is not None else own or str(o.max_depth)
 
 
+def _verdict_line(o: MediaOutcome) -> str:
+    """The check's line; for a scene not checked, its verdict, scene and reason in the same layout."""
+    if o.verdict in ("refused",) or o.verdict.startswith("error"):
+        depth = "the scene's max_depth" if o.max_depth is None else f"max_depth {o.max_depth}"
+        return f"{o.verdict.split(':')[0]:<12} {o.scene} [{depth}]: {o.line or o.verdict}"
+    return o.line
+
+
 def markdown(outcomes: list[MediaOutcome], command: str) -> str:
     checked = [o for o in outcomes if o.verdict not in ("refused",) and not o.verdict.startswith("error")]
     counts = {v: sum(o.verdict == v for o in outcomes) for v in ("agree", "disagree", "inconclusive", "refused")}
@@ -144,7 +152,9 @@ def markdown(outcomes: list[MediaOutcome], command: str) -> str:
              f"Welch's t-test per 4 x 4 block and channel, family-wise false-positive rate 1% per check) at {SIZE} "
              f"pixels on the longer side, 16 passes of {SPP} spp escalated up to {MAX_SPP} when undecided. "
              "*Detectable* is the image-mean bias (largest channel) the check would have detected at its power: "
-             "an agreement rules out a bias of that size, not a smaller one. The closed-form tests (a homogeneous "
+             "an agreement rules out a bias of that size, not a smaller one. A scene's two depths are rendered "
+             "from the same seeds, so their noise is correlated: two agreements are not two independent "
+             "confirmations of the shared part of the image. The closed-form tests (a homogeneous "
              "slab's transmittance and single scattering, an infinite medium in a white furnace, the phase "
              "functions' chi-square) are tests/test_media.py and tests/test_phase_chi2.py.", "",
              "| | checks |", "|---|---:|",
@@ -159,7 +169,7 @@ def markdown(outcomes: list[MediaOutcome], command: str) -> str:
         diff = f"{o.mean_difference:+.2%}" if o in checked else ""
         det = f"{o.detectable:.1%}" if o in checked else ""
         lines.append(f"| {o.scene} | {_depth(o)} | {o.verdict.replace('|', '/')} | {diff} | {det} | {o.seconds:.0f} |")
-    lines += ["", "## Verdict lines", "", "```"] + [o.line or f"{o.verdict} {o.scene}" for o in outcomes] + ["```"]
+    lines += ["", "## Verdict lines", "", "```"] + [_verdict_line(o) for o in outcomes] + ["```"]
     found = [o.scene for o in outcomes if o.verdict in ("disagree", "inconclusive") or o.verdict.startswith("error")]
     if found or CAUSES:
         lines += ["", "## Causes", ""]
