@@ -34,8 +34,10 @@ HEADER = """# Peers: Cycles, LuxCoreRender, the tracer and Mitsuba itself, check
 per side, 32 px on the longer side, family-wise alpha 1e-3) on every scene of `mitsuba_scenes/` at max_depth 2, 3
 and the scene's own, for Blender's Cycles (bpy 5.0.1) and LuxCoreRender (pyluxcore 2.11.2) through the built-in
 adapters (`--renderer cycles|luxcore`, README "Peers"), the tracer's `path` estimator, and Mitsuba 3.9.1 against
-itself (`examples/mitsuba_renderer.py` reading `{scene_resolved}`, a process per pass). Times were measured on a
-2-core machine shared with other work: they compare nothing, they say what a check cost here.
+itself (`examples/mitsuba_renderer.py` reading `{scene_resolved}`, a process per pass) and the NumPy example
+(`examples/numpy_renderer.py` reading `{scene_json}`) at each scene's own max_depth; then Cycles and LuxCore on the
+scenes of mitsuba-renderer/mitsuba-data they can express (`--data`). Times were measured on a 2-core machine
+shared with other work: they compare nothing, they say what a check cost here.
 """
 
 
