@@ -176,7 +176,6 @@ def test_media_are_read_as_mitsuba_reads_them(tmp_path):
      "supported names: interior, exterior"),
     ('<medium type="homogeneous" id="m"><float name="sigma_t" value="-1"/></medium>'
      '<shape type="sphere"><ref name="interior" id="m"/></shape>', "must not be negative"),
-    ('<integrator type="volpathmis"/>', "unsupported integrator plugin 'volpathmis'"),
 ])
 def test_refusals(tmp_path, body, words):
     errors = scene_errors(write_scene(tmp_path, body))

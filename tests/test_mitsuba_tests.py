@@ -125,12 +125,14 @@ def _write_rgb(path: Path, xyz: np.ndarray) -> None:
 
 
 def _miniature_data(root: Path, mi) -> Path:
-    """tests/scenes/tiny/{test_sphere_path.xml, test_sphere_volpathmis.xml} and refs/test_sphere_ref_rgb{,_var}.exr:
-    Mitsuba's mean and per-sample variance at 32,000 spp, from the moment integrator, as Mitsuba's references."""
+    """tests/scenes/tiny/{test_sphere_path.xml, test_sphere_ptracer.xml} and refs/test_sphere_ref_rgb{,_var}.exr:
+    Mitsuba's mean and per-sample variance at 32,000 spp, from the moment integrator, as Mitsuba's references
+    (a moment cannot wrap Mitsuba's ptracer: that scene has the ptracer alone)."""
     folder = root / "tests" / "scenes" / "tiny"
     (folder / "refs").mkdir(parents=True)
-    for integrator in ("path", "volpathmis"):
-        (folder / f"test_sphere_{integrator}.xml").write_text(SCENE)
+    (folder / "test_sphere_path.xml").write_text(SCENE)
+    (folder / "test_sphere_ptracer.xml").write_text(SCENE.replace('<integrator type="moment">', "").replace(
+        "</integrator>\n    </integrator>", "</integrator>"))
     scene = mi.load_file(str(folder / "test_sphere_path.xml"), spp=32000)
     scene.integrator().render(scene, seed=12345, spp=32000)
     parts = scene.sensors()[0].film().bitmap(raw=False).split()
@@ -142,9 +144,9 @@ def _miniature_data(root: Path, mi) -> Path:
 
 @pytest.mark.slow
 def test_the_command_on_a_miniature_mitsuba_data(tmp_path, mi, monkeypatch, capsys):
-    """The tracer and Mitsuba pass the test of a scene the tracer renders; the scene's volpathmis test is refused
-    by the tracer with Mitsuba's own verdict beside it (Mitsuba renders it: a pass or a fail, never an error; its
-    volpathmis draws other random numbers than its path, so its pixel test is its own); a tracer 5% too bright
+    """The tracer and Mitsuba pass the test of a scene the tracer renders; the scene's ptracer test is refused
+    by the tracer (its constant environment) with Mitsuba's own verdict beside it (Mitsuba renders it: a pass or a
+    fail, never an error; its ptracer draws other random numbers than its path, so its pixel test is its own); a tracer 5% too bright
     fails; a second run renders nothing again."""
     root = _miniature_data(tmp_path / "data", mi)
     monkeypatch.chdir(tmp_path)
@@ -152,8 +154,8 @@ def test_the_command_on_a_miniature_mitsuba_data(tmp_path, mi, monkeypatch, caps
     assert mt.report(root, report, "validate mitsuba-tests MITSUBA_DATA_DIR", cache=tmp_path / "cache") == 0
     out = capsys.readouterr().out
     assert "pass     tiny/test_sphere_path.xml: " in out and "Mitsuba: pass" in out
-    assert ("refused  tiny/test_sphere_volpathmis.xml: tests/scenes/tiny/test_sphere_volpathmis.xml:4: "
-            "<integrator type=\"$integrator\">: unsupported integrator plugin 'volpathmis'") in out
+    assert ("refused  tiny/test_sphere_ptracer.xml: tests/scenes/tiny/test_sphere_ptracer.xml:4: "
+            "<integrator type=\"$integrator\">: ptracer's image differs from path's here: emitter 'constant'") in out
     text = report.read_text()
     assert "| tiny/test_sphere_path.xml | path | 256 | 7812 |" in text
     assert "| the tracer passes | 1 |" in text and "| Mitsuba's render failed |" not in text

@@ -22,6 +22,7 @@ VALUES = {
     "block_size": '<integer name="block_size" value="8"/>',
     "samples_per_pass": '<integer name="samples_per_pass" value="2"/>',
     "timeout": '<float name="timeout" value="1"/>',
+    "use_spectral_mis": '<boolean name="use_spectral_mis" value="false"/>',
     "to_world": '<transform name="to_world"><translate x="0.5"/></transform>',
     "fov": '<float name="fov" value="30"/>', "fov_axis": '<string name="fov_axis" value="y"/>',
     "focal_length": '<string name="focal_length" value="35mm"/>',
@@ -105,7 +106,8 @@ EXPECTED = {
     "integrator": {"max_depth": HONOURED, "rr_depth": HONOURED, "hide_emitters": REFUSED, "block_size": NO_EFFECT,
                    "samples_per_pass": NO_EFFECT, "timeout": REFUSED, "shading_samples": HONOURED,
                    "emitter_samples": HONOURED, "bsdf_samples": HONOURED,
-                   "aovs": NO_EFFECT},     # AOV channels beside the image, which the tracer does not write
+                   "aovs": NO_EFFECT,      # AOV channels beside the image, which the tracer does not write
+                   "use_spectral_mis": NO_EFFECT},   # volpathmis's MIS over the channels: the noise, not the image
     "sensor": {"to_world": HONOURED, "fov": HONOURED, "fov_axis": REFUSED,   # fov_axis without fov: unreferenced
                "focal_length": HONOURED, "near_clip": HONOURED, "far_clip": HONOURED, "focus_distance": NO_EFFECT,
                "principal_point_offset_x": REFUSED, "principal_point_offset_y": REFUSED, "shutter_open": REFUSED,

@@ -21,6 +21,7 @@ import numpy as np
 from . import media, spectra, transform
 from .errors import clip, shorten
 from .film import ReconstructionFilter
+from .integrators import ptracer
 from .lights import PLUGINS as LIGHT_PLUGINS
 from .materials import BSDF, bumpmap, textures
 from .materials import PLUGINS as BSDF_PLUGINS
@@ -49,7 +50,7 @@ SAMPLE_COUNTS = {
     "ldsampler": lambda n: _square_at_least(n, lambda r: r >= 2 and r & (r - 1) == 0),
 }
 SUPPORTED = {
-    "integrator": ("path", "moment", "volpath", "direct", "aov"),
+    "integrator": ("path", "moment", "volpath", "volpathmis", "direct", "aov", "ptracer"),
     "sensor": ("perspective", "thinlens", "orthographic"),
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian", "tent"),
@@ -95,6 +96,9 @@ MITSUBA_PARAMETERS: dict[tuple[str, str], tuple[str, ...]] = {
     ("integrator", "moment"): ("hide_emitters", "block_size", "samples_per_pass", "timeout"),
     ("integrator", "volpath"): ("max_depth", "rr_depth", "hide_emitters", "block_size", "samples_per_pass",
                                 "timeout"),
+    ("integrator", "volpathmis"): ("max_depth", "rr_depth", "hide_emitters", "use_spectral_mis", "block_size",
+                                   "samples_per_pass", "timeout"),
+    ("integrator", "ptracer"): ("max_depth", "rr_depth", "hide_emitters", "samples_per_pass", "timeout"),
     **{("medium", name): media.PARAMETERS for name in media.KINDS},
     **{("phase", name): params for name, params in media.phases.PLUGINS.items()},
     **{("volume", name): params for name, params in media.volumes.PLUGINS.items()},
@@ -749,6 +753,14 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
     _place_media(ctx, scene)
     if scene.shading_samples[0] > 1 and scene.delta_lights:
         ctx.errors.append(str(ctx.error(integrators[0], DELTA_SAMPLES.format(n=scene.shading_samples[0]))))
+    if scene.integrator.endswith("ptracer") and not ctx.errors:
+        node = integrators[0]
+        while [n for n in node.children if n.tag == "integrator"]:    # inside a moment or an aov: the nested one
+            node = next(n for n in node.children if n.tag == "integrator")
+        for reason in ptracer.differences(scene):
+            ctx.errors.append(str(ctx.error(node, f"ptracer's image differs from path's here: {reason}; "
+                                                            "the tracer renders ptracer where they are the same "
+                                                            "(README 'ptracer')")))
     return scene
 
 
@@ -813,6 +825,7 @@ def _integrator(ctx: _Context, node: Node) -> dict:
     out = {"max_depth": props.get("max_depth", -1, ("integer",)), "rr_depth": props.get("rr_depth", 5, ("integer",)),
            "hide_emitters": props.get("hide_emitters", False, ("boolean",))}
     props.ignore("block_size", "samples_per_pass")        # how work is scheduled: not the estimate
+    props.ignore("use_spectral_mis")                       # volpathmis's MIS over channels: the noise, not the image
     props.finish()
     if out["hide_emitters"]:   # Mitsuba lets camera rays pass through area lights: not implemented
         raise ctx.error(props.values["hide_emitters"], "hide_emitters = true is not supported by the tracer")

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .film import ReconstructionFilter
+from .integrators.ptracer import NOTE as PTRACER_NOTE
 from .lights import DELTA_KINDS, ConstantEnvironment, DirectionalLight, EnvironmentMap, PointLight
 from .materials import BSDF
 from .meshes import bounding_box
@@ -80,8 +81,9 @@ class Scene:
 
     @property
     def volumetric(self) -> bool:
-        """Whether the scene's integrator is `volpath`, which renders its media."""
-        return self.integrator.endswith("volpath")
+        """Whether the scene's integrator is `volpath` or `volpathmis` (its expected image: volpath's), which
+        render its media."""
+        return self.integrator.split()[-1] in ("volpath", "volpathmis")
 
     def of_kind(self, kind: type) -> list:
         return [s for s in self.shapes if isinstance(s, kind)]
@@ -142,6 +144,11 @@ class Scene:
             out.append(f"direct: the path estimator at max_depth 2, one sample of each strategy used per pixel "
                        f"sample, weighted as Mitsuba weights {self.shading_samples[0]} emitter and "
                        f"{self.shading_samples[1]} BSDF samples (the same expected image, other noise)")
+        if self.integrator.endswith("volpathmis"):
+            out.append("volpathmis: rendered with the tracer's volpath; Mitsuba's spectral MIS over the RGB channels "
+                       "changes the noise, not the expected image")
+        if self.integrator.endswith("ptracer"):
+            out.append(PTRACER_NOTE)
         if self.instances:
             out.append(f"{self.instances} instance(s) of shapegroups expanded into copies of their shapes (the same "
                        "image; memory grows with the instances: the tracer has no two-level BVH)")

@@ -21,7 +21,8 @@ from tracer.errors import UserError
 SET_ANYWHERE = ("width", "height", "max_depth", "spp")   # -D names a check applies to any scene
 MITSUBA_FILM = (768, 576)      # hdrfilm's default size
 MITSUBA_MAX_DEPTH = -1         # the path integrator's default
-COMPARED_INTEGRATORS = ("path", "volpath", "direct")   # the integrators of Mitsuba a comparison renders
+# the integrators of Mitsuba a comparison renders: each is Mitsuba's own, against the tracer's estimate of its image
+COMPARED_INTEGRATORS = ("path", "volpath", "volpathmis", "direct", "ptracer")
 DIRECT_DEPTH = 2               # the direct integrator's image: the path integrator's at max_depth 2
 
 
@@ -51,7 +52,7 @@ class ScenePlan:
         kind = _substitute(integrator.get("type", ""), self.params)
         if kind not in COMPARED_INTEGRATORS:
             raise ScenePlanError(f"{self.path}: <integrator type=\"{kind}\">: the comparison uses Mitsuba's "
-                                 "path, volpath or direct integrator (or a moment integrator wrapping one)")
+                                 f"{', '.join(COMPARED_INTEGRATORS)} integrator (or a moment or aov integrator wrapping one)")
         if kind != "direct":
             _set(integrator, "integer", "max_depth", str(self.max_depth))
         elif self.max_depth != DIRECT_DEPTH:
