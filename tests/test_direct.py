@@ -81,7 +81,6 @@ def test_info_says_how_direct_is_rendered(tmp_path):
      '<integer name="bsdf_samples" value="1"/></integrator>', "not both"),
     ('<integrator type="direct"><integer name="shading_samples" value="0"/></integrator>', "at least one"),
     ('<integrator type="direct"><integer name="max_depth" value="3"/></integrator>', "unreferenced"),
-    ('<integrator type="direct"><boolean name="hide_emitters" value="true"/></integrator>', "hide_emitters"),
 ])
 def test_bad_direct_is_refused(tmp_path, body, words):
     (error,) = scene_errors(write_scene(tmp_path, body))

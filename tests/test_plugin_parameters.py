@@ -149,6 +149,7 @@ EXPECTED = {
                "max_value": REFUSED, "grid": REFUSED, "data": REFUSED},
 }
 SPECIAL = {   # (tag, kind, parameter) whose handling differs from the tag's other plugins
+    **{("integrator", kind, "hide_emitters"): HONOURED for kind in ("path", "direct", "ptracer")},
     ("shape", "cylinder", "silhouette_sampling_weight"): NO_EFFECT,
     ("shape", "disk", "silhouette_sampling_weight"): NO_EFFECT,
     ("emitter", "envmap", "to_world"): HONOURED,
@@ -280,7 +281,7 @@ def _fingerprint(s) -> bytes:
                          [(light.direction.tolist(), light.irradiance) for light in s.directional_lights],
                          [(m.kind, m.scale, m.phase, m.sample_emitters, m.spectral_extinction,
                            *(_volume_print(v) for v in (m.sigma_t, m.albedo))) for m in s.media],
-                         sorted(s.shape_media.values()), s.camera_medium))
+                         sorted(s.shape_media.values()), s.camera_medium, s.hide_emitters))
 
 
 def _volume_print(v):

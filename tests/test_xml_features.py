@@ -212,8 +212,8 @@ REFUSED = [
      '"Gold"', "no conductor named 'Gold'"),
     ('<shape type="rectangle"><bsdf type="conductor">\n<rgb name="specular_reflectance" value="1.5"/></bsdf>'
      '</shape>', 'type="conductor"', "specular_reflectance must lie in [0, 1]"),
-    ('<integrator type="path">\n<boolean name="hide_emitters" value="true"/></integrator>', "hide_emitters",
-     "hide_emitters = true is not supported"),
+    ('<integrator type="volpath">\n<boolean name="hide_emitters" value="true"/></integrator>', "hide_emitters",
+     "hide_emitters = true with volpath"),
     ('<shape type="rectangle"><emitter type="area">\n<float name="scale" value="2"/></emitter></shape>',
      '"scale"', "unreferenced property 'scale'"),
     ('<shape type="sphere">\n<transform name="to_world"><scale x="2"/></transform></shape>', '<shape type="sphere">',

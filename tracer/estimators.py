@@ -60,7 +60,7 @@ class PathEstimator:
             L, count = volpath_radiance(geo, o, d, t_min, t_max, rng, opaque_u32(depth), opaque_u32(scene.rr_depth))
         else:
             L, count = path_radiance(geo, o, d, t_min, t_max, rng, opaque_u32(depth), opaque_u32(scene.rr_depth),
-                                     Strategies(*scene.shading_samples))
+                                     Strategies(*scene.shading_samples), scene.hide_emitters)
         return x, y, L, count
 
     def render_pass(self, geo, scene, film: Film, spp: int, seed: int, chunk: int, progress: bool) -> int:

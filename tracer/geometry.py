@@ -320,6 +320,12 @@ class SceneGeometry:
             le = dr.select(surf.valid, le, self.environment_radiance(-wi))
         return le
 
+    def emits(self, surf: Surface) -> Bool:
+        """Whether the surface hit is an area light's shape (either side)."""
+        if not self.emitters:
+            return Bool(False)
+        return surf.valid & (dr.gather(Float, self.prim_light_pdf, surf.prim, surf.valid) > 0)
+
     def environment_radiance(self, d: Array3f) -> Array3f:
         """Radiance arriving from the environment along -d (d: the direction leaving the scene)."""
         if self.envmap is not None:

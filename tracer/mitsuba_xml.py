@@ -741,6 +741,7 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
         shading_samples=integrator.get("shading_samples", (1, 1)),
         sampler=sampler.get("kind", "independent"),
         path=ctx.path,
+        hide_emitters=HIDING.get(integrator.get("name", "path").split()[-1]) if integrator.get("hide_emitters") else None,
     )
     for node in lights:
         if node not in environments[1:]:
@@ -753,6 +754,11 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
     _place_media(ctx, scene)
     if scene.shading_samples[0] > 1 and scene.delta_lights:
         ctx.errors.append(str(ctx.error(integrators[0], DELTA_SAMPLES.format(n=scene.shading_samples[0]))))
+    passing = next((b for b in scene.bsdfs if ptracer.passes_through(b)), None)
+    if scene.hide_emitters == "pass" and passing is not None and not ctx.errors:
+        ctx.errors.append(str(ctx.error(integrators[0], f"hide_emitters = true with a surface rays pass through "
+                                                        f"(bsdf '{passing.kind}'): Mitsuba 3.9.1 then hides what is "
+                                                        "seen through it by rules the tracer does not follow")))
     if scene.integrator.endswith("ptracer") and not ctx.errors:
         node = integrators[0]
         while [n for n in node.children if n.tag == "integrator"]:    # inside a moment or an aov: the nested one
@@ -827,8 +833,9 @@ def _integrator(ctx: _Context, node: Node) -> dict:
     props.ignore("block_size", "samples_per_pass")        # how work is scheduled: not the estimate
     props.ignore("use_spectral_mis")                       # volpathmis's MIS over channels: the noise, not the image
     props.finish()
-    if out["hide_emitters"]:   # Mitsuba lets camera rays pass through area lights: not implemented
-        raise ctx.error(props.values["hide_emitters"], "hide_emitters = true is not supported by the tracer")
+    if out["hide_emitters"] and kind not in HIDING:
+        raise ctx.error(props.values["hide_emitters"], f"hide_emitters = true with {kind}: the tracer hides emitters "
+                                                       f"with {', '.join(HIDING)}")
     if out["max_depth"] < -1:
         raise ctx.error(node, f"max_depth must be -1 (unbounded) or >= 0, got {out['max_depth']}")
     if out["rr_depth"] < 1:
@@ -851,6 +858,12 @@ def _moment(ctx: _Context, node: Node, props: _Props) -> dict:
                               "a moment around exactly one (its image is that integrator's)")
     out = _integrator(ctx, nested[0])
     return {**out, "name": f"moment around {out['name']}"}
+
+
+# The integrators whose hide_emitters the tracer honours, and how (Scene.hide_emitters): Mitsuba 3.9.1's path and
+# direct let camera rays pass through emitting shapes and show no environment to them; its ptracer only leaves out
+# the light it connects from emitters straight to the camera (the emitting shapes still reflect and occlude).
+HIDING = {"path": "pass", "direct": "pass", "ptracer": "dark"}
 
 
 AOV_TYPES = ("albedo", "depth", "position", "uv", "geo_normal", "sh_normal", "dp_du", "dp_dv", "duv_dx", "duv_dy",
@@ -887,12 +900,10 @@ def _direct(ctx: _Context, node: Node, props: _Props) -> dict:
     hide = props.get("hide_emitters", False, ("boolean",))
     props.ignore("block_size", "samples_per_pass")
     props.finish()
-    if hide:
-        raise ctx.error(props.values["hide_emitters"], "hide_emitters = true is not supported by the tracer")
     if min(counts) < 0 or sum(counts) == 0:
         raise ctx.error(node, f"emitter_samples and bsdf_samples must be >= 0, at least one of them positive "
                               f"(as Mitsuba), got {counts[0]} and {counts[1]}")
-    return {"max_depth": 2, "rr_depth": 5, "name": "direct", "shading_samples": counts}
+    return {"max_depth": 2, "rr_depth": 5, "name": "direct", "shading_samples": counts, "hide_emitters": hide}
 
 
 # Mitsuba 3.9.1's direct integrator weights each emitter sample of a delta light 1, not 1 / emitter_samples

@@ -78,6 +78,10 @@ class Scene:
     media: list = field(default_factory=list)        # of tracer.media.Medium, in the order of their codes 1, 2, ...
     shape_media: dict = field(default_factory=dict)  # a shape -> its (interior, exterior) medium codes (0: none)
     camera_medium: int = 0                           # the code of the medium the camera sits in
+    # the integrator's hide_emitters, as Mitsuba 3.9.1's: None (shown); "pass": camera rays pass through emitting
+    # shapes and see no environment (path, direct); "dark": emission reaching the camera directly is left out,
+    # the emitting shapes still reflect and occlude (ptracer)
+    hide_emitters: str | None = None
 
     @property
     def volumetric(self) -> bool:
@@ -149,6 +153,12 @@ class Scene:
                        "changes the noise, not the expected image")
         if self.integrator.endswith("ptracer"):
             out.append(PTRACER_NOTE)
+        if self.hide_emitters == "pass":
+            out.append("hide_emitters: camera rays pass through emitting shapes and see no environment (as Mitsuba's "
+                       "path and direct)")
+        if self.hide_emitters == "dark":
+            out.append("hide_emitters: no emission reaches the camera directly; emitting shapes still reflect and "
+                       "occlude (as Mitsuba's ptracer)")
         if self.instances:
             out.append(f"{self.instances} instance(s) of shapegroups expanded into copies of their shapes (the same "
                        "image; memory grows with the instances: the tracer has no two-level BVH)")
@@ -163,6 +173,9 @@ class Scene:
     def estimator_refusals(self, estimator: str) -> list[str]:
         """What the named estimator cannot render correctly in this scene, one line each (empty: nothing)."""
         out = []
+        if estimator == "report" and self.hide_emitters:
+            out.append(f"{self.path}: the report estimator does not hide emitters (the integrator's hide_emitters); "
+                       "use --estimator path")
         if estimator == "report" and self.volumetric:
             what = (f"participating media ({', '.join(sorted({m.kind for m in self.media}))})" if self.media else
                     "the volpath integrator (whose shadow rays cross null surfaces)")

@@ -66,13 +66,17 @@ class PathState:
 
 
 def path_radiance(geo: SceneGeometry, o: Array3f, d: Array3f, t_min: Float, t_max: Float, rng: PCG32,
-                  max_depth: UInt32, rr_depth: UInt32, strategies: Strategies = PATH) -> tuple[Array3f, UInt32]:
+                  max_depth: UInt32, rr_depth: UInt32, strategies: Strategies = PATH,
+                  hide: str | None = None) -> tuple[Array3f, UInt32]:
     """Radiance along each camera ray and the number of rays each path traced. With a mesh BVH the paths go
     bounce by bounce (_wavefront, where SceneGeometry.bounce_by_bounce), else in one kernel
     (_megakernel); each lane's path is the same. `strategies`: the samples of each strategy of direct
-    lighting (Mitsuba's `direct` integrator is this path tracer at max_depth 2 with its own counts)."""
+    lighting (Mitsuba's `direct` integrator is this path tracer at max_depth 2 with its own counts).
+    `hide`: the integrator's hide_emitters (Scene.hide_emitters): no emission reaches the camera directly,
+    and with "pass" camera rays go on through emitting shapes (Mitsuba 3.9.1's path.cpp and direct.cpp:
+    skip_area_emitters), their depth unchanged."""
     path = PathState(o, d, t_min, t_max, Bool(max_depth > 0))
-    return trace_paths(geo, rng, path, _bounce, max_depth, rr_depth, strategies)
+    return trace_paths(geo, rng, path, _bounce, max_depth, rr_depth, strategies, hide)
 
 
 def trace_paths(geo: SceneGeometry, rng: PCG32, path, bounce, *args) -> tuple[Array3f, UInt32]:
@@ -115,11 +119,12 @@ def _wavefront(geo: SceneGeometry, rng: PCG32, path, bounce, *args) -> tuple[Arr
             compile_clock.lap()    # a bounce's thousands of walk kernels leave Dr.Jit's history
 
 
-def _bounce(geo, rng, path: PathState, max_depth, rr_depth, strategies: Strategies = PATH) -> None:
+def _bounce(geo, rng, path: PathState, max_depth, rr_depth, strategies: Strategies = PATH,
+            hide: str | None = None) -> None:
     """A path's next vertex (_vertex), then Russian roulette."""
-    active_next = _vertex(geo, rng, path, max_depth, strategies)
+    active_next, passed = _vertex(geo, rng, path, max_depth, strategies, hide)
     path.t_min, path.t_max = Float(0.0), Float(INF)
-    path.depth += 1
+    path.depth = dr.select(passed, path.depth, path.depth + 1)
     rr_active = path.depth >= rr_depth
     q = dr.minimum(dr.max(path.beta) * path.eta * path.eta, Q_MAX)
     survive = rng.next_float32() < q
@@ -127,10 +132,11 @@ def _bounce(geo, rng, path: PathState, max_depth, rr_depth, strategies: Strategi
     path.active = active_next & (~rr_active | survive) & (dr.max(path.beta) > 0)
 
 
-def _vertex(geo, rng, path: PathState, max_depth, strategies: Strategies) -> Bool:
+def _vertex(geo, rng, path: PathState, max_depth, strategies: Strategies, hide: str | None) -> tuple[Bool, Bool]:
     """One path vertex: emission (MIS-weighted), a shadow ray weighted by the BSDF (MIS-weighted against
     sampling the BSDF, where it has a non-delta lobe), and the next direction sampled from the BSDF,
-    updating `path`; returns whether the path may go on."""
+    updating `path`; returns whether the path may go on, and whether its camera ray passed through an
+    emitting shape (`hide` "pass": not a vertex)."""
     L, beta, d, rays, depth = path.L, path.beta, path.d, path.rays, path.depth
     hit = geo.closest_hit(path.o, d, path.t_min, path.t_max, path.skip)
     rays += 1
@@ -147,8 +153,13 @@ def _vertex(geo, rng, path: PathState, max_depth, strategies: Strategies) -> Boo
         w = dr.select(path.prev_delta, 1.0, power_heuristic(path.prev_pdf * c_bsdf, pdf_light * c_light))
         if not strategies.bsdf:          # only the camera's rays find emitters: no BSDF-sampled light
             w = dr.select(depth == 0, 1.0, 0.0)
+        if hide:                         # hide_emitters: none seen directly
+            w = dr.select(depth == 0, 0.0, w)
         L += dr.select(on_light, beta * le * w, Array3f(0.0))
     active_next = surf.valid & (depth + 1 < max_depth)
+    passed = (depth == 0) & geo.emits(surf) if hide == "pass" else Bool(False)
+    going_on = active_next                  # passing an emitting shape goes on
+    active_next = active_next & ~passed     # a new array: going_on keeps its own
     bsdf = SurfaceBSDF(geo.materials, surf, wi, active_next)
     if geo.has_lights and strategies.emitter:
         nee = active_next & bsdf.smooth & bsdf.lit
@@ -159,7 +170,8 @@ def _vertex(geo, rng, path: PathState, max_depth, strategies: Strategies) -> Boo
         rays += dr.select(nee, 1, 0)
     u1 = rng.next_float32()
     bs, weight = bsdf.sample(u1, Array2f(rng.next_float32(), rng.next_float32()), active_next)
-    path.L, path.beta, path.eta, path.rays = L, beta * weight, path.eta * bs.eta, rays
-    path.o, path.d, path.skip = surf.p, bs.wo, surf.prim
-    path.prev_delta, path.prev_pdf = has_flag(bs.sampled_type, DELTA), bs.pdf
-    return active_next
+    path.L, path.rays = L, rays
+    path.beta, path.eta = dr.select(passed, beta, beta * weight), dr.select(passed, path.eta, path.eta * bs.eta)
+    path.o, path.d, path.skip = surf.p, dr.select(passed, d, bs.wo), surf.prim
+    path.prev_delta, path.prev_pdf = passed | has_flag(bs.sampled_type, DELTA), bs.pdf
+    return going_on, passed

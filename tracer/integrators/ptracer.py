@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..materials.bsdf import DELTA, DIFFUSE_TRANSMISSION, GLOSSY_TRANSMISSION
+from ..materials.bsdf import DELTA, DIFFUSE_TRANSMISSION, GLOSSY_TRANSMISSION, NULL
 from ..materials.dispatch import KINDS, KIND_CODE
 
 NOTE = ("ptracer (a light tracer): rendered with the path estimator, which estimates the same image with "
@@ -41,6 +41,12 @@ def _parts(bsdf) -> list:
         if other is not None:
             out += _parts(other)
     return out
+
+
+def passes_through(bsdf) -> bool:
+    """Whether rays pass through the material somewhere (a null lobe: null, polarizer, thindielectric's
+    transmission; a mask), it, its back or its blend's second material."""
+    return any(KINDS[KIND_CODE[p.kind]].FLAGS & NULL or p.masked for p in _parts(bsdf))
 
 
 def _bsdf_difference(bsdf) -> str | None:
