@@ -240,12 +240,12 @@ def test_refused_by_name(tmp_path, body, snippet, words):
     assert any(f"{path.name}:{line}:" in e and words in e for e in errors), (line, errors)
 
 
-def test_film_crop_is_refused(tmp_path):
-    header = HEADER.replace('<rfilter type="box"/>', '<rfilter type="box"/>\n<integer name="crop_width" value="4"/>')
+def test_a_crop_outside_the_film_is_refused(tmp_path):
+    header = HEADER.replace('<rfilter type="box"/>', '<rfilter type="box"/>\n<integer name="crop_width" value="9"/>')
     path = write_scene(tmp_path, "", header=header)
     (error,) = scene_errors(path)
-    assert_located(error, path, line_of(path, "crop_width"))
-    assert "crop" in error
+    assert_located(error, path, line_of(path, '<film type="hdrfilm">'))
+    assert "crop_width 9" in error and "does not fit the 8 x 6 film" in error
 
 
 def test_obj_with_a_zero_length_normal_is_refused(tmp_path):
@@ -257,7 +257,7 @@ def test_obj_with_a_zero_length_normal_is_refused(tmp_path):
 
 def test_all_refusals_listed_at_once(tmp_path):
     body = "\n".join(f"    {b}" for b, _, _ in REFUSED[:6] + REFUSED[-1:])
-    header = HEADER.replace('<rfilter type="box"/>', '<rfilter type="box"/>\n<integer name="crop_width" value="4"/>')
+    header = HEADER.replace('<rfilter type="box"/>', '<rfilter type="box"/>\n<integer name="crop_width" value="9"/>')
     path = write_scene(tmp_path, body, header=header)
     errors = scene_errors(path)
     assert len(errors) == 8, errors

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from .camera import primary_rays
+from .camera import pixel_count, primary_rays
 from .film import Film, ReconstructionFilter
 from .geometry import SceneGeometry
 from .materials import SurfaceBSDF
@@ -60,7 +60,7 @@ def render_aovs(scene: Scene, spp: int = DEFAULT_SPP, seed: int | None = None,
     albedo_film, normal_film = Film(cam.width, cam.height, rfilter), Film(cam.width, cam.height, rfilter)
 
     def run():
-        for first, n in chunks(cam.width * cam.height * spp, PATH_CHUNK, False, "aov"):
+        for first, n in chunks(pixel_count(cam) * spp, PATH_CHUNK, False, "aov"):
             sample = dr.arange(UInt32, n) + opaque_u32(first)
             rng = seeded_rng(sample, seed_state(seed, AOV_STREAM))
             o, d, t_min, t_max, x, y = primary_rays(cam, sample // spp, rng)

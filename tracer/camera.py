@@ -15,15 +15,21 @@ def primary_rays(camera: Camera, pixel: UInt32, rng: PCG32):
     Local +z looks forward, +x left and +y up, so pixel (0, 0) is the top-left one, as in Mitsuba. A thin
     lens (Mitsuba's `thinlens`) starts each ray at a point drawn uniformly on its disk (concentric map) and
     aims it at the pixel's point on the plane at focus_distance.
+    Pixels are counted over the sampled grid, camera.sampled_size: the image and, with hdrfilm's
+    sample_border, the filter's border around it. A crop window places the image inside the whole film,
+    through which rays are cast (Mitsuba's projection of film size, crop size and crop offset).
     Returns (origin, direction, t_min, t_max, x, y): t_min/t_max are the near and far clip planes,
-    (x, y) the film position in pixels, where the film splats the sample.
+    (x, y) the image position in pixels, where the film splats the sample.
     """
-    x = Float(pixel % camera.width) + rng.next_float32()
-    y = Float(pixel // camera.width) + rng.next_float32()
+    columns, border = camera.sampled_size[0], camera.border
+    x = Float(pixel % columns) + rng.next_float32() - border
+    y = Float(pixel // columns) + rng.next_float32() - border
+    fx, fy = x + camera.crop_x, y + camera.crop_y        # on the whole film
+    width, height = camera.film_size
     if camera.projection == "orthographic":
-        return _orthographic(camera, x, y) + (x, y)
+        return _orthographic(camera, fx, fy) + (x, y)
     tan_x, tan_y = camera.tan_half_fov()
-    local = Array3f((1.0 - 2.0 * x / camera.width) * tan_x, (1.0 - 2.0 * y / camera.height) * tan_y, 1.0)
+    local = Array3f((1.0 - 2.0 * fx / width) * tan_x, (1.0 - 2.0 * fy / height) * tan_y, 1.0)
     m = camera.to_world
     if camera.aperture_radius > 0:     # a thin lens: through a point of its disk towards the focal plane's point
         lx, ly = square_to_uniform_disk_concentric(rng.next_float32(), rng.next_float32())
@@ -40,15 +46,17 @@ def primary_rays(camera: Camera, pixel: UInt32, rng: PCG32):
 
 def _orthographic(camera: Camera, x: Float, y: Float):
     """Mitsuba's `orthographic` sensor: parallel rays along to_world's +z from the point (1 - 2 x / width,
-    (1 - 2 y / height) / aspect, near_clip) of the local near plane (its orthographic_projection inverted;
+    (1 - 2 y / height) / aspect, near_clip) (x, y on the whole film) of the local near plane (its orthographic_projection inverted;
     to_world may scale it), reaching far_clip - near_clip beyond it."""
-    aspect = camera.width / camera.height
+    width, height = camera.film_size
+    aspect = width / height
     m = camera.to_world
-    lx, ly = 1.0 - 2.0 * x / camera.width, (1.0 - 2.0 * y / camera.height) / aspect
+    lx, ly = 1.0 - 2.0 * x / width, (1.0 - 2.0 * y / height) / aspect
     o = vec3(m[:3, 0]) * lx + vec3(m[:3, 1]) * ly + vec3(m[:3, 2] * camera.near_clip + m[:3, 3])
     d = vec3(m[:3, 2] / np.linalg.norm(m[:3, 2])) + Array3f(0.0) * lx   # broadcast to the wavefront's width
     return o, d, Float(0.0), Float(camera.far_clip - camera.near_clip)
 
 
 def pixel_count(camera: Camera) -> int:
-    return int(np.prod((camera.width, camera.height)))
+    """The pixels camera rays start in (camera.sampled_size)."""
+    return int(np.prod(camera.sampled_size))

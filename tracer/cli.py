@@ -258,6 +258,10 @@ def _render(args) -> int:
     scene = load_scene(args.scene, **parse_defines(args.defines))
     if width is not None or height is not None:
         cam = scene.camera
+        if cam.cropped:
+            raise SettingsError(f"{args.scene}: the film renders a {cam.width} x {cam.height} crop window of its "
+                                f"{cam.film_size[0]} x {cam.film_size[1]} pixels; --size, --width and --height "
+                                "resize whole films (set the film's crop_* and size with -D where the scene declares them)")
         scene.camera = dataclasses.replace(cam, width=width or cam.width, height=height or cam.height)
     max_depth = args.max_depth if args.report_depth is None else args.report_depth + REPORT_DEPTH_OFFSET
     spp = args.spp if args.spp is not None or args.estimator == "path" else 1
@@ -376,8 +380,11 @@ def _info(args) -> int:
     else:
         print("  parameters: none (the scene declares no <default>)")
     view = f"perspective, fov {cam.fov} ({cam.fov_axis})" if cam.projection == "perspective" else "orthographic"
-    print(f"  camera: {view}, {cam.width} x {cam.height}, "
-          f"{cam.rfilter.describe()} filter")
+    window = (f" (the crop window at ({cam.crop_x}, {cam.crop_y}) of a {cam.film_size[0]} x {cam.film_size[1]} film)"
+              if cam.cropped else "")
+    border = f", its {cam.border}-pixel border sampled (sample_border)" if cam.sample_border else ""
+    print(f"  camera: {view}, {cam.width} x {cam.height}{window}, "
+          f"{cam.rfilter.describe()} filter{border}")
     print(f"  sampler: {scene.spp} spp, seed {scene.seed}; integrator: {scene.integrator}, "
           f"max_depth {scene.max_depth}, rr_depth {scene.rr_depth}")
     for note in scene.notes():

@@ -14,7 +14,7 @@ from typing import ClassVar
 
 import drjit as dr
 
-from .camera import primary_rays
+from .camera import pixel_count, primary_rays
 from .errors import SettingsError
 from .film import Film
 from .integrators.path import Strategies, path_radiance
@@ -66,7 +66,7 @@ class PathEstimator:
     def render_pass(self, geo, scene, film: Film, spp: int, seed: int, chunk: int, progress: bool) -> int:
         """`spp` samples per pixel into `film`, in launches of `chunk` paths; returns the rays traced."""
         sampler = lambda sample, pixel, state: self.samples(geo, scene, sample, pixel, state)  # noqa: E731
-        return trace_pass(film, sampler, film.width * film.height * spp, lambda sample: sample // spp,
+        return trace_pass(film, sampler, pixel_count(scene.camera) * spp, lambda sample: sample // spp,
                           seed_state(seed), progress, "path", chunk=chunk)
 
 
@@ -116,7 +116,7 @@ class BranchingEstimator:
         """`spp` camera rays per pixel into `film`, in launches of `chunk` camera rays (their trees grow
         as M^(max_depth - 2)); returns the rays traced."""
         rays = 0
-        for index, (start, n) in enumerate(chunks(scene.camera.width * scene.camera.height * spp, chunk,
+        for index, (start, n) in enumerate(chunks(pixel_count(scene.camera) * spp, chunk,
                                                    progress, "report")):
             sample = dr.arange(UInt32, n) + opaque_u32(start)
             rng = seeded_rng(sample, seed_state(seed, index))

@@ -954,8 +954,13 @@ def _camera(ctx: _Context, node: Node) -> tuple[Camera, dict]:
     if kind != "orthographic" and not rigid:
         raise ctx.error(props.values["to_world"], "a camera's to_world may not scale or shear (as Mitsuba): "
                                                   "translate, rotate, lookat")
+    window = {}
+    if (film.get("crop_width", w), film.get("crop_height", h)) != (w, h):
+        window = {"film_width": w, "film_height": h, "crop_x": film["crop_offset_x"], "crop_y": film["crop_offset_y"]}
+        w, h = film["crop_width"], film["crop_height"]
     camera = Camera(to_world, float(fov), fov_axis, float(near), float(far), w, h, film["rfilter"],
-                    "orthographic" if kind == "orthographic" else "perspective", **lens)
+                    "orthographic" if kind == "orthographic" else "perspective", **lens, **window,
+                    sample_border=film.get("sample_border", False))
     return camera, sampler
 
 
@@ -969,13 +974,17 @@ def _film(ctx: _Context, node: Node) -> dict:
     w, h = props.get("width", 768, ("integer",)), props.get("height", 576, ("integer",))
     if w < 1 or h < 1:
         raise ctx.error(node, f"film size must be positive, got {w} x {h}")
-    crop = {k: props.get(k, None, ("integer",)) for k in ("crop_offset_x", "crop_offset_y", "crop_width", "crop_height")}
-    full = {"crop_offset_x": 0, "crop_offset_y": 0, "crop_width": w, "crop_height": h}
-    for name, value in crop.items():
-        if value is not None and value != full[name]:
-            raise ctx.error(props.values[name], f"{name} = {value} (a film crop) is not supported by the tracer")
-    if props.get("sample_border", False, ("boolean",)):
-        raise ctx.error(props.values["sample_border"], "sample_border = true is not supported by the tracer")
+    # the crop window (Mitsuba's Film::set_crop_window): the image is this part of the film
+    crop = {"crop_offset_x": props.get("crop_offset_x", 0, ("integer",)),
+            "crop_offset_y": props.get("crop_offset_y", 0, ("integer",)),
+            "crop_width": props.get("crop_width", w, ("integer",)), "crop_height": props.get("crop_height", h, ("integer",))}
+    if crop["crop_width"] < 1 or crop["crop_height"] < 1:
+        raise ctx.error(node, f"the crop window must be at least 1 x 1 pixels, got {crop['crop_width']} x "
+                              f"{crop['crop_height']}")
+    if crop["crop_offset_x"] + crop["crop_width"] > w or crop["crop_offset_y"] + crop["crop_height"] > h:
+        window = ", ".join(f"{k} {v}" for k, v in crop.items())
+        raise ctx.error(node, f"the crop window ({window}) does not fit the {w} x {h} film (as Mitsuba)")
+    sample_border = props.get("sample_border", False, ("boolean",))
     # The tracer writes the film's RGB as float32 OpenEXR: formats that store the same RGB are accepted.
     for name, accepted in (("pixel_format", ("rgb", "rgba")), ("component_format", ("float32",)),
                            ("file_format", ("openexr", "exr"))):
@@ -984,7 +993,7 @@ def _film(ctx: _Context, node: Node) -> dict:
             raise ctx.error(props.values[name], f"{name} '{value}' is not supported; supported: {', '.join(accepted)}")
     props.ignore("banner", "compensate")     # metadata in the file; summation accuracy of the film
     props.finish()
-    return {"width": w, "height": h, "rfilter": rfilter}
+    return {"width": w, "height": h, "rfilter": rfilter, "sample_border": sample_border, **crop}
 
 
 def _sampler(ctx: _Context, node: Node) -> dict:

@@ -83,6 +83,7 @@ def render(scene: Scene | str | Path, estimator: str = "path", spp: int | None =
         raise SceneError("\n".join(refusals))
     estimator = make_estimator(name, max_depth, direct, indirect, hemisphere)
     rfilter = check_rfilter(scene.camera.rfilter if rfilter is None else rfilter)
+    check_border(scene.camera, rfilter)
     if time_limit is not None and (isinstance(time_limit, bool) or not isinstance(time_limit, numbers.Real)
                                    or not time_limit > 0):
         raise SettingsError(f"time_limit must be a positive number of seconds, got {time_limit!r}")
@@ -150,12 +151,20 @@ def check_rfilter(rfilter) -> ReconstructionFilter:
     return rfilter
 
 
+def check_border(camera, rfilter: ReconstructionFilter) -> None:
+    """With hdrfilm's sample_border, camera rays start in the scene filter's border: another filter would
+    need another border."""
+    if camera.sample_border and rfilter != camera.rfilter:
+        raise SettingsError(f"the film samples its border (sample_border) for its {camera.rfilter.describe()} "
+                            f"filter; render it with that filter, not {rfilter.describe()}")
+
+
 def make_plan(scene: Scene, spp: int, estimator: PathEstimator | BranchingEstimator, border: int,
               one_spp_passes: bool = False, images: int = 2, geometry: SceneGeometry | None = None) -> Plan:
     """tracer.plan's plan for the scene's camera, this backend's precision and the estimator's tree (or
     its path tracer bounce by bounce, where the scene's meshes go into a BVH: as `geometry` has them, or,
     before it is built, as a SceneGeometry with the default bvh_threshold will)."""
-    width, height = scene.camera.width, scene.camera.height
+    width, height = scene.camera.sampled_size        # the image, and the border sample_border adds
     if isinstance(estimator, BranchingEstimator):
         extra = {"slots": estimator.slots, "direct": estimator.direct}
     elif geometry is not None:

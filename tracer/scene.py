@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .film import ReconstructionFilter
+from .film import Film, ReconstructionFilter
 from .integrators.ptracer import NOTE as PTRACER_NOTE
 from .lights import DELTA_KINDS, ConstantEnvironment, DirectionalLight, EnvironmentMap, PointLight
 from .materials import BSDF
@@ -43,10 +43,38 @@ class Camera:
     projection: str = "perspective"      # or "orthographic": Mitsuba's sensor of that name (no fov)
     aperture_radius: float = 0.0         # a `thinlens` sensor's lens (0: a pinhole)
     focus_distance: float = 0.0          # the distance along the view axis that it brings into focus
+    # hdrfilm's crop window: the image (width x height) is the part of a film_width x film_height film whose
+    # top-left pixel is (crop_x, crop_y); film_width 0: no crop, the image is the film
+    film_width: int = 0
+    film_height: int = 0
+    crop_x: int = 0
+    crop_y: int = 0
+    sample_border: bool = False          # hdrfilm's: camera rays also start in the filter's border around the image
+
+    @property
+    def film_size(self) -> tuple[int, int]:
+        """The whole film, in pixels: the image's size where there is no crop."""
+        return (self.film_width, self.film_height) if self.film_width else (self.width, self.height)
+
+    @property
+    def cropped(self) -> bool:
+        return self.film_size != (self.width, self.height)
+
+    @property
+    def border(self) -> int:
+        """Pixels sampled beyond each edge of the image: the filter's reach with sample_border, else 0
+        (Mitsuba's border_size, tracer.film.Film.border_of)."""
+        return Film.border_of(self.rfilter) if self.sample_border else 0
+
+    @property
+    def sampled_size(self) -> tuple[int, int]:
+        """The pixels camera rays start in, each `spp` times: the image and its sampled border."""
+        return self.width + 2 * self.border, self.height + 2 * self.border
 
     def tan_half_fov(self) -> tuple[float, float]:
-        """tan of half the field of view along image x and y, from `fov` and `fov_axis`."""
-        aspect = self.width / self.height
+        """tan of half the field of view along image x and y, from `fov` and `fov_axis` (over the whole film)."""
+        width, height = self.film_size
+        aspect = width / height
         t = float(np.tan(np.radians(self.fov) / 2))
         axis = self.fov_axis
         if axis == "smaller":

@@ -149,6 +149,12 @@ def plan(path: str | Path, defines: dict[str, str] | None = None, size: int | No
                              f"(it declares: {', '.join(sorted(declared)) or 'none'}; any scene takes "
                              f"{', '.join(SET_ANYWHERE)})")
     params = declared | {k: v for k, v in defines.items() if k in declared}
+    film = _first(root, "sensor", path).find("film")
+    crop = [n for n in ("crop_offset_x", "crop_offset_y", "crop_width", "crop_height")
+            if film is not None and _value(film, n, params) is not None]
+    if crop:
+        raise ScenePlanError(f"{path}: the film has a crop window ({crop[0]}): a comparison renders whole films, "
+                             "resized (tests/test_film_crop.py compares crops with Mitsuba)")
     width, height = _film_size(root, params, path)
     if "width" in defines or "height" in defines:
         width = _integer(defines.get("width", width), "width", path)
