@@ -63,6 +63,7 @@ def test_the_report_states_verdicts_biases_and_causes(monkeypatch):
     assert "could have missed: 5.0%" in text
     assert "- b.xml: the backdrop's texture" in text and "agree a.xml ..." in text
     assert "refused      c.xml [max_depth 3]: unsupported integrator plugin 'volpathmis'" in text
+    assert "## Follow-up checks" in text and "--spp 256" in text
 
 
 def test_the_command_refuses_a_folder_that_is_not_mitsuba_data(tmp_path, capsys):
