@@ -392,6 +392,11 @@ def _info(args) -> int:
     print(f"  ({DEPTH_NOTE})")
     print(f"  shapes: {len(scene.rectangles)} rectangles, {len(scene.meshes)} meshes "
           f"({scene.triangle_count} triangles), {len(scene.spheres)} spheres")
+    if scene.groups:
+        held, drawn = scene.instanced_triangles
+        print(f"  instanced: {sum(len(g.meshes) for g in scene.groups)} mesh(es) of {held} triangles in "
+              f"{len(scene.groups)} shapegroup(s), held once, drawn as {drawn} triangles by "
+              f"{sum(len(g.to_world) for g in scene.groups)} instance(s)")
     for e in scene.emitters:
         print(f"  light '{e.name}': radiance {tuple(round(x, 4) for x in e.radiance)}")
     print("  kernel:")

@@ -21,10 +21,11 @@ from .lights.envmap import EnvmapKernel
 from .materials import MaterialTables
 from .media import MediaKernel
 from .sampling import square_to_uniform_sphere
-from .scene import Scene
+from .scene import Scene, SceneError
 from .shapes import BVH_THRESHOLD, SETS, MeshSet, Rectangle, RectangleSet, ShapeSet, SphereSet
 from .shapes.rectangle import EmitterTable
 from .shapes.bvh import BATCHED_WALKS
+from .shapes.instance import InstanceSet
 from .shapes.planar import inset_point
 
 
@@ -60,7 +61,7 @@ class Surface:
 def uses_bvh(scene: Scene) -> bool:
     """Whether a SceneGeometry of the scene (its default bvh_threshold) puts primitives into a BVH."""
     return (MeshSet.uses_bvh(scene.triangle_count) or SphereSet.uses_bvh(len(scene.of_kind(SphereSet.kind)))
-            or RectangleSet.uses_bvh(len(scene.of_kind(RectangleSet.kind))))
+            or RectangleSet.uses_bvh(len(scene.of_kind(RectangleSet.kind))) or scene.instanced_triangles[1] > 0)
 
 
 def goes_bounce_by_bounce(has_mesh_bvh: bool) -> bool:
@@ -75,6 +76,7 @@ def goes_bounce_by_bounce(has_mesh_bvh: bool) -> bool:
 
 _recorded: list | None = None    # see recorded_queries
 PASSING = ("null", "thindielectric")    # material kinds with a null lobe (materials.bsdf's null_transmission)
+LAST_PRIM = NO_PRIM - 2    # primitive numbers from here on mark light samples (lights.sample)
 
 
 @contextmanager
@@ -112,7 +114,15 @@ class SceneGeometry:
             options = {"bvh_threshold": bvh_threshold} if cls is MeshSet else {}
             self.shape_sets.append(cls(scene.of_kind(cls.kind), base, **options))
             base += self.shape_sets[-1].count
-        self.n_prims = base
+        self.n_prims = base                    # the scene's own primitives; the instanced ones number after them
+        self.instanced = []                    # one two-level BVH per shapegroup with meshes (shapes.instance)
+        for group in scene.groups:
+            if group.meshes and group.to_world:
+                self.instanced.append(InstanceSet(group, base))
+                base += self.instanced[-1].count
+        if base >= LAST_PRIM:
+            raise SceneError(f"{scene.path}: {base:,} primitives with the instanced triangles (each instance's "
+                             f"numbered apart); the tracer numbers at most {LAST_PRIM:,}")
         self.rectangles, self.meshes = (self._set(cls) for cls in (RectangleSet, MeshSet))
         self.bvhs = [s.bvh for s in self.shape_sets if s.bvh is not None]   # walked after the unrolled tests
         self.curved_base = sum(s.count for s in self.shape_sets if s.planar)   # primitives below it are planar
@@ -165,6 +175,12 @@ class SceneGeometry:
             self.meshes.build_uvs()
         if self.materials.oriented:
             self.meshes.build_tangents()
+        for group in self.instanced:
+            group.set_materials(self.materials.index)
+            if self.materials.textured:
+                group.meshes.build_uvs()
+            if self.materials.oriented:
+                group.meshes.build_tangents()
 
     def _set(self, cls: type) -> ShapeSet:
         return next(s for s in self.shape_sets if isinstance(s, cls))
@@ -190,7 +206,8 @@ class SceneGeometry:
         lights = np.array([light.position for light in self.points]).reshape(-1, 3)   # shadow rays end there too
         eps = 1e-6 * self.scene.extent()
         keep = set(range(self.curved_base, self.n_prims))
-        sets = sorted((s for s in self.shape_sets if s.count), key=lambda s: s.count)   # the cheapest sides first
+        sets = sorted((s for s in [*self.shape_sets, *self.instanced] if s.count),
+                      key=lambda s: s.count)   # the cheapest sides first
         for shapes in self.shape_sets:
             for i, p0, n in shapes.culling_planes():
                 light = (lights - p0) @ n
@@ -209,7 +226,7 @@ class SceneGeometry:
     @property
     def bounce_by_bounce(self) -> bool:
         """Whether the path tracer goes bounce by bounce, its mesh BVH walks batched (integrators.path)."""
-        return goes_bounce_by_bounce(self.meshes.bvh is not None)
+        return goes_bounce_by_bounce(self.meshes.bvh is not None or bool(self.instanced))
 
     @contextmanager
     def batched(self):
@@ -249,7 +266,12 @@ class SceneGeometry:
                 b1, b2 = dr.select(closer, u, b1), dr.select(closer, v, b2)
         for bvh in self.bvhs:
             t_best, prim, b1, b2 = bvh.closest_hit(o, d, t_min, t_best, prim, b1, b2, skip, self.batch)
-        return Hit(t_best, prim, b1, b2, self._hit_point(o, d, t_best, prim, b1, b2))
+        for group in self.instanced:
+            t_best, prim, b1, b2 = group.closest_hit(o, d, t_min, t_best, prim, b1, b2, skip, self.batch)
+        p = self._hit_point(o, d, t_best, prim, b1, b2)
+        for group in self.instanced:
+            p = group.hit_point(prim, b1, b2, p)
+        return Hit(t_best, prim, b1, b2, p)
 
     def _hit_point(self, o, d, t, prim, b1, b2) -> Array3f:
         """o + t d, or on a rectangle or triangle the point of its local coordinates kept inside it
@@ -279,11 +301,18 @@ class SceneGeometry:
             blocked |= t < dist
         for bvh in self.bvhs:
             blocked |= bvh.occluded(o, d, dist, skip, target, active & ~blocked, self.batch)
+        for group in self.instanced:
+            blocked |= group.occluded(o, d, dist, skip, active & ~blocked, self.batch)
         return blocked
 
     # ---- surface data -----------------------------------------------------------------------------
+    def own(self, prim: UInt32, valid: Bool) -> Bool:
+        """valid where prim is one of the scene's own primitives (not an instanced triangle): the lanes
+        that may read the tables of its own primitives."""
+        return valid & (prim < self.n_prims) if self.instanced else valid
+
     def surface(self, hit: Hit) -> Surface:
-        valid = hit.valid
+        valid = self.own(hit.prim, hit.valid)
         prim = dr.select(valid, hit.prim, 0)
         n = dr.gather(Array3f, self.prim_normal, prim, valid)
         for shapes in self.shape_sets:
@@ -303,6 +332,10 @@ class SceneGeometry:
         dpdv = None
         if self.materials.any_bumpmap:
             dpdv = self.meshes.cotangent(prim, valid, Array3f(0.0))
+        for group in self.instanced:
+            n, ns, material, uv, dpdu, dpdv = group.surface(hit.prim, hit.valid, hit.p, hit.b1, hit.b2, n, ns,
+                                                            material, uv, dpdu, dpdv)
+        valid = hit.valid
         bary = (hit.b1, hit.b2) if self.materials.attributed else None
         return Surface(hit.p, n, ns, material, dr.select(valid, hit.prim, NO_PRIM), valid, uv, dpdu, dpdv, bary)
 
@@ -314,8 +347,9 @@ class SceneGeometry:
             return Array3f(0.0)
         le = Array3f(0.0)
         if self.emitters:
-            le = dr.gather(Array3f, self.prim_radiance, surf.prim, surf.valid)
-            le = dr.select(surf.valid & (dr.dot(surf.ns, wi) > 0), le, Array3f(0.0))
+            own = self.own(surf.prim, surf.valid)
+            le = dr.gather(Array3f, self.prim_radiance, surf.prim, own)
+            le = dr.select(own & (dr.dot(surf.ns, wi) > 0), le, Array3f(0.0))
         if self.has_environment:
             le = dr.select(surf.valid, le, self.environment_radiance(-wi))
         return le
@@ -334,7 +368,7 @@ class SceneGeometry:
 
     def light_pdf_area(self, surf: Surface) -> Float:
         """Area density with which sample_light picks this point (0 off the lights)."""
-        return dr.gather(Float, self.prim_light_pdf, surf.prim, surf.valid)
+        return dr.gather(Float, self.prim_light_pdf, surf.prim, self.own(surf.prim, surf.valid))
 
     def environment_pdf(self, d: Array3f):
         """Solid-angle density with which sample_light picks direction d to the environment."""
@@ -385,6 +419,7 @@ class SceneGeometry:
         """What the traced kernel contains, for `tracer info`."""
         kinds = [s.describe() for s in self.shape_sets if s.count]
         lines = [f"intersection: {', '.join(kinds) or 'no shapes'}"]
+        lines += [f"instancing: {group.describe()}" for group in self.instanced]
         lines.append(f"shading normals: {'interpolated on smooth meshes' if self.meshes.smooth else 'geometric only'}")
         lines.append(f"materials: {', '.join(sorted({b.kind for b in self.materials.bsdfs})) or 'none'}")
         env = " and a constant environment" if self.environment is not None else (

@@ -29,6 +29,7 @@ from .meshes import MeshError
 from .scene import Camera, Scene, SceneError
 from .shapes import PLUGINS as SHAPE_PLUGINS
 from .shapes.base import ShapeArgs
+from .shapes.instance import KINDS as INSTANCED, ShapeGroup
 from .shapes.mesh import MeshFile, load as load_meshes
 from .spectra import rgb
 
@@ -160,6 +161,7 @@ class _Context:
         self.emitter_shapes: dict[int, Node] = {}     # an area emitter's node -> the shape it is attached to
         self.shape_media: dict[int, tuple] = {}       # a shape's index in Scene.shapes -> (interior, exterior)
         self.sensor_medium = None                     # the medium the camera sits in
+        self.shape_groups: dict[int, ShapeGroup] = {}  # a shapegroup's node -> its instanced meshes
 
     def error(self, node: Node | None, message: str) -> SceneError:
         if node is None:
@@ -792,13 +794,15 @@ def _place_media(ctx: _Context, scene: Scene) -> None:
 
 def _read_meshes(ctx: _Context, scene: Scene) -> None:
     """Replaces the mesh shapes' MeshFile by their meshes, all read at once (in parallel)."""
-    requests = [s for s in scene.shapes if isinstance(s, MeshFile)]
+    held = [scene.shapes] + [g.meshes for g in scene.groups]
+    requests = [s for shapes in held for s in shapes if isinstance(s, MeshFile)]
     meshes = dict(zip(requests, load_meshes(requests)))
     for r, m in meshes.items():
         if isinstance(m, MeshError):
             ctx.errors.append(str(ctx.error(r.args.node, str(m))))
-    scene.shapes = [meshes[s] if isinstance(s, MeshFile) else s for s in scene.shapes]
-    scene.shapes = [s for s in scene.shapes if not isinstance(s, MeshError)]
+    for shapes in held:
+        shapes[:] = [s for s in (meshes[s] if isinstance(s, MeshFile) else s for s in shapes)
+                     if not isinstance(s, MeshError)]
 
 
 def _light(ctx: _Context, node: Node):
@@ -1050,8 +1054,10 @@ def _area_light(ctx: _Context, node: Node) -> tuple[float, float, float]:
     return rgb(value)
 
 
-def _add_shape(ctx: _Context, scene: Scene, node: Node, outer: np.ndarray | None = None, prefix: str = "") -> None:
-    """The shape of a <shape> element (placed by `outer` and named after `prefix` inside an instance)."""
+def _add_shape(ctx: _Context, scene: Scene, node: Node, outer: np.ndarray | None = None, prefix: str = "",
+               group: ShapeGroup | None = None) -> None:
+    """The shape of a <shape> element (placed by `outer` and named after `prefix` inside an instance; a mesh
+    of `group` kept in the group's space, for its instances)."""
     kind = _check_type(ctx, node)
     if kind in GROUPING:
         if outer is not None:
@@ -1073,6 +1079,10 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node, outer: np.ndarray | None
             isinstance(t, textures.MeshAttribute) for t in bsdf.every_texture()):
         raise ctx.error(bsdfs[0], f"a mesh_attribute texture on a '{kind}' (Mitsuba reads 0 there); supported "
                                   f"shapes: {', '.join(textures.ATTRIBUTE_SHAPES)} (the meshes with attributes)")
+    if bsdf is not None and group is not None and any(
+            isinstance(t, textures.MeshAttribute) for t in bsdf.every_texture()):
+        raise ctx.error(bsdfs[0], f"a mesh_attribute texture on a '{kind}' inside a shapegroup is not supported (the "
+                                  "tracer reads mesh attributes on meshes outside shapegroups)")
     if bsdf is not None and bsdf.texture_of("bumpmap") is not None and kind not in bumpmap.SHAPES:
         raise ctx.error(bsdfs[0], f"a bumpmap on a '{kind}' is not supported (the tracer computes dp/dv on "
                                   f"meshes only); supported shapes: {', '.join(bumpmap.SHAPES)}")
@@ -1082,13 +1092,18 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node, outer: np.ndarray | None
     if outer is not None:
         if emitters:
             raise ctx.error(emitters[0], "an area emitter on a shape inside a shapegroup (Mitsuba refuses it)")
-        to_world = outer @ to_world
+        if group is None:
+            to_world = outer @ to_world
     flip = props.get("flip_normals", False, ("boolean",))
     props.ignore("silhouette_sampling_weight")   # differentiable rendering
     name = prefix + node.attrib.get("id", f"{kind}@{node.line}")
     module = SHAPE_PLUGINS[kind]
     held = _media(ctx, props, ("interior", "exterior"))
-    scene.shapes.append(module.from_xml(ctx, props, ShapeArgs(node, kind, to_world, flip, bsdf, radiance, name)))
+    if group is not None and held:
+        raise ctx.error(node, f"a medium on a {kind} inside a shapegroup is not supported (the tracer instances "
+                              "meshes without media; a sphere, rectangle, disk or cylinder there may hold one)")
+    shape = module.from_xml(ctx, props, ShapeArgs(node, kind, to_world, flip, bsdf, radiance, name))
+    (group.meshes if group is not None else scene.shapes).append(shape)
     if held:
         ctx.shape_media[len(scene.shapes) - 1] = (held.get("interior"), held.get("exterior"))
 
@@ -1137,9 +1152,10 @@ def _shapegroup(ctx: _Context, scene: Scene, node: Node) -> None:
 
 
 def _instance(ctx: _Context, scene: Scene, node: Node) -> None:
-    """Mitsuba's `instance` of a shapegroup, placed by its to_world. The tracer expands it: each member of the
-    group becomes a shape of its own with to_world = the instance's times the member's (the image Mitsuba's
-    instancing gives; memory grows with the instances, as `tracer info` says)."""
+    """Mitsuba's `instance` of a shapegroup, placed by its to_world. The group's meshes are instanced: held
+    once in the group's space (its ShapeGroup, built at its first instance) and drawn by each instance's
+    transform (tracer.shapes.instance). Its other members are expanded: each becomes a shape of its own with
+    to_world = the instance's times the member's (the image Mitsuba's instancing gives)."""
     props = _Props(ctx, node, "instance")
     groups = props.children("shape")
     to_world = props.get("to_world", np.eye(4), ("transform",))
@@ -1148,11 +1164,24 @@ def _instance(ctx: _Context, scene: Scene, node: Node) -> None:
         raise ctx.error(node, "an instance refers to exactly one shapegroup (as in Mitsuba)")
     group = groups[0]
     scene.instances += 1
-    prefix = f"{group.attrib.get('id', 'shapegroup')}#{scene.instances}/"
+    name = group.attrib.get('id', 'shapegroup')
+    prefix = f"{name}#{scene.instances}/"
+    instanced = ctx.shape_groups.get(id(group))
+    first = instanced is None
+    if first:
+        instanced = ctx.shape_groups[id(group)] = ShapeGroup(name)
+        scene.groups.append(instanced)
+    instanced.to_world.append(to_world)
     for member in group.children:
         if member.tag == "ref":
             member = ctx.ids.get(member.attrib.get("id", ""), member)
-        if member.tag == "shape" and member.attrib.get("type") not in GROUPING:
+        kind = member.attrib.get("type")
+        if member.tag != "shape" or kind in GROUPING:
+            continue
+        if kind in INSTANCED:
+            if first:
+                ctx.attempt(_add_shape, ctx, scene, member, to_world, f"{name}/", instanced)
+        else:
             ctx.attempt(_add_shape, ctx, scene, member, to_world, prefix)
 
 

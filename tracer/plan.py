@@ -48,6 +48,8 @@ SPAWN_LANE_BYTES = 16       # per possible child of a level (a spawned one takes
 PROCESS_BYTES = 120 << 20   # the interpreter and libraries with the kernels compiled (measured 112 MiB)
 TRIANGLE_BYTES = 1024       # per mesh triangle (measured about 650 to 1,030 after building the BVH)
 TEXEL_BYTES = 48            # per texel of a texture or environment map
+INSTANCE_BYTES = TRIANGLE_BYTES + 256   # per instance of a shapegroup's meshes: a top-level BVH entry, as a
+                                        # triangle's, and its two matrices
 
 
 def pass_spps(pixels: int, spp: int, max_samples: int = MAX_PASS_SAMPLES) -> list[int]:

@@ -18,7 +18,7 @@ from .geometry import SceneGeometry, goes_bounce_by_bounce
 from .shapes import MeshSet
 from .jit import BACKEND, PRECISION
 from .launch import seed_state
-from .plan import TEXEL_BYTES, TRIANGLE_BYTES, Plan, available_memory, gib, plan_render
+from .plan import INSTANCE_BYTES, TEXEL_BYTES, TRIANGLE_BYTES, Plan, available_memory, gib, plan_render
 from .scene import Scene, SceneError
 
 ESTIMATORS = (PathEstimator.name, BranchingEstimator.name)
@@ -170,20 +170,24 @@ def make_plan(scene: Scene, spp: int, estimator: PathEstimator | BranchingEstima
     elif geometry is not None:
         extra = {"wavefront": geometry.bounce_by_bounce}
     else:
-        extra = {"wavefront": goes_bounce_by_bounce(MeshSet.uses_bvh(scene.triangle_count))}
+        extra = {"wavefront": goes_bounce_by_bounce(MeshSet.uses_bvh(scene.triangle_count)
+                                                    or scene.instanced_triangles[1] > 0)}
     return plan_render(width, height, spp, estimator.name, estimator.max_depth, border=border,
                        float_bytes=8 if PRECISION == "double" else 4, images=images, scene_bytes=scene_bytes(scene),
                        max_pass_samples=width * height if one_spp_passes else None, **extra)
 
 
 def scene_bytes(scene: Scene) -> int:
-    """tracer.plan's estimate of the memory the scene's arrays take: its mesh triangles and texels."""
+    """tracer.plan's estimate of the memory the scene's arrays take: its mesh triangles (those of shapegroups
+    once, and per instance its rows: INSTANCE_BYTES) and texels."""
     textures = {id(t): t for b in scene.bsdfs for t in b.every_texture()}
     images = [t.image for t in textures.values() if getattr(t, "image", None) is not None]
     if scene.envmap is not None:
         images.append(scene.envmap.image)
     texels = sum(image.shape[0] * image.shape[1] for image in images)
-    return scene.triangle_count * TRIANGLE_BYTES + texels * TEXEL_BYTES
+    instances = sum(len(g.to_world) for g in scene.groups if g.meshes)
+    return ((scene.triangle_count + scene.instanced_triangles[0]) * TRIANGLE_BYTES + instances * INSTANCE_BYTES
+            + texels * TEXEL_BYTES)
 
 
 def pass_seed(seed: int, index: int) -> int:

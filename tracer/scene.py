@@ -99,7 +99,8 @@ class Scene:
     rr_depth: int = 5
     integrator: str = "path"                      # the scene's integrator, e.g. "moment around path"
     sampler: str = "independent"                  # the scene's sampler; the tracer's samples are independent
-    instances: int = 0                            # Mitsuba `instance`s, expanded into shapes of their own
+    instances: int = 0                            # Mitsuba `instance`s (their meshes in `groups`, the rest expanded)
+    groups: list = field(default_factory=list)    # of tracer.shapes.instance.ShapeGroup: instanced meshes
     shading_samples: tuple[int, int] = (1, 1)     # `direct`'s emitter and BSDF samples (integrators.path.Strategies)
     lights: list = field(default_factory=list)    # of the kinds in tracer.lights (area lights: emitting shapes)
     path: Path | None = None
@@ -188,8 +189,10 @@ class Scene:
             out.append("hide_emitters: no emission reaches the camera directly; emitting shapes still reflect and "
                        "occlude (as Mitsuba's ptracer)")
         if self.instances:
-            out.append(f"{self.instances} instance(s) of shapegroups expanded into copies of their shapes (the same "
-                       "image; memory grows with the instances: the tracer has no two-level BVH)")
+            instanced = sum(len(g.to_world) for g in self.groups if g.meshes)
+            out.append(f"{self.instances} instance(s) of shapegroups: their meshes instanced ({instanced} instance(s) "
+                       f"of {sum(len(g.meshes) for g in self.groups)} mesh(es) held once, in a two-level BVH), "
+                       "their other shapes expanded into copies (the same image as Mitsuba's instancing)")
         kinds = {b.kind for b in self.bsdfs}
         for kind in sorted(kinds & set(UNPOLARIZED)):
             out.append(f"{kind}: rendered as Mitsuba's RGB (unpolarized) variants render it; {UNPOLARIZED[kind]}")
@@ -234,18 +237,25 @@ class Scene:
     @property
     def bsdfs(self) -> list[BSDF]:
         seen: list[BSDF] = []
-        for s in in_primitive_order(self.shapes):
+        for s in in_primitive_order(self.shapes) + [m for g in self.groups for m in g.meshes]:
             if s.bsdf not in seen:
                 seen.append(s.bsdf)
         return seen
 
     @property
     def triangle_count(self) -> int:
+        """The triangles of the meshes that are not instanced."""
         return sum(len(m.faces) for m in self.meshes)
+
+    @property
+    def instanced_triangles(self) -> tuple[int, int]:
+        """(the triangles held by the shapegroups, those their instances draw)."""
+        return (sum(g.triangles for g in self.groups),
+                sum(g.triangles * len(g.to_world) for g in self.groups))
 
     def extent(self) -> float:
         """Diagonal of the bounding box of all geometry (the scene's length scale)."""
-        pts = [np.atleast_2d(p) for s in self.shapes for p in s.extent_points()]
+        pts = [np.atleast_2d(p) for s in self.shapes + self.groups for p in s.extent_points()]
         if not pts:
             return 1.0
         lo, hi = bounding_box(pts)

@@ -25,6 +25,7 @@ class MediaKernel:
             interior[lo:hi], exterior[lo:hi] = inside, outside
         self.interior, self.exterior = UInt32(interior), UInt32(exterior)
         self.camera = scene.camera_medium
+        self.own = geo.own       # instanced triangles hold no media (the loader refuses them)
 
     def _each(self, code: UInt32):
         for k, m in enumerate(self.media, start=1):
@@ -71,6 +72,7 @@ class MediaKernel:
 
     def transition(self, prim: UInt32, valid: Bool) -> tuple[Bool, UInt32, UInt32]:
         """Whether crossing primitive `prim` changes the medium, and its interior and exterior codes."""
+        valid = self.own(prim, valid)
         inside = dr.gather(UInt32, self.interior, prim, valid)
         outside = dr.gather(UInt32, self.exterior, prim, valid)
         return valid & ((inside | outside) != 0), inside, outside

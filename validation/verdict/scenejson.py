@@ -51,7 +51,7 @@ def write(scene_plan, folder: Path) -> Path:
     writer = _Writer(folder)
     materials: list = []
     shapes = []
-    for i, shape in enumerate(scene.shapes):
+    for i, shape in enumerate(scene.shapes + [m for g in scene.groups for m in g.copies()]):   # instances expanded
         kind, analytic, (v, f, n, uv) = _triangles(shape)
         mesh = f"shapes/{i:03d}.ply"
         _write_ply(folder / mesh, v, f, n, uv, getattr(shape, "attributes", None))
