@@ -239,3 +239,17 @@ def test_bad_instancing_is_refused(tmp_path, body, words):
     errors = scene_errors(write_scene(tmp_path, body))
     assert any(words in e for e in errors), errors
 
+
+def test_the_instances_bench_generates_its_mesh_and_states_its_verdict(tmp_path):
+    from validation.benchmark import instances as bench
+
+    assert bench.write_mesh(tmp_path / "sheet.obj") == 10_000
+    scene = tracer.load_scene(bench.write_scene(tmp_path, 5, True))
+    assert [(g.triangles, len(g.to_world)) for g in scene.groups] == [(10_000, 5)]
+    rows = [{"n": 1, "instanced": True, "peak_mib": 500.0, "table_bytes": 2000, "seconds": 1.0},
+            {"n": 10_000, "instanced": True, "peak_mib": 1100.0, "table_bytes": 2 ** 21, "seconds": 2.0},
+            {"n": 1, "instanced": False, "peak_mib": 500.0, "seconds": 1.0},
+            {"n": 100, "instanced": False, "peak_mib": 1094.0, "seconds": 9.0}]
+    text = "\n".join(bench.markdown({"triangles": 10_000, "rows": rows}))
+    assert "NOT within 2x of one instance's peak plus the instance table (2 x (500 + 2.00) = 1004 MiB)" in text
+    assert "Copies cost 6.0 MiB each" in text

@@ -91,7 +91,7 @@ def _parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="time the tracer and Mitsuba side by side: reports/performance.md")
     b.add_argument("--output", "-o", type=Path, default=Path("reports"))
     b.add_argument("--only", nargs="+", metavar="SECTION", help="run only these sections (side_by_side, tables, "
-                   "ceiling, cold, specialisation, scaling, meshes, memory, scenes), keeping the others from the "
+                   "ceiling, cold, specialisation, scaling, meshes, memory, scenes, instances), keeping the others from the "
                    "previous performance.json; the report says which run each section comes from. A folder among "
                    "them is taken as --mitsuba-data (`--only scenes DIR`)")
     b.add_argument("--mitsuba-data", type=Path, metavar="DIR", help="a copy of mitsuba-renderer/mitsuba-data: the "

@@ -22,6 +22,7 @@ import numpy as np
 
 from tracer.estimators import REPORT_DEPTH_OFFSET
 
+from .instances import instances as instance_section, markdown as instance_markdown
 from .mesh_scene import write_mesh_scene
 from ..verdict.scene_variants import write_variant
 from .scene_bench import markdown as scene_markdown, scenes as scene_section
@@ -556,6 +557,7 @@ def sections(mitsuba_data: Path | None = None, scene_options: dict | None = None
             "meshes": lambda out, progress: meshes(progress),
             "memory": lambda out, progress: memory(progress, mitsuba_data),
             "scenes": lambda out, progress: scene_section(progress, mitsuba_data, **(scene_options or {})),
+            "instances": lambda out, progress: instance_section(progress),
             "against": other}
 
 
@@ -742,6 +744,7 @@ def markdown(r: dict) -> str:
               f"takes {by_n[largest]['Mitsuba'] / by_n[smallest]['Mitsuba']:.1f}x.", ""]
     lines += mesh_markdown(r["meshes"])
     lines += memory_markdown(r["memory"])
+    lines += instance_markdown(r["instances"])
     lines += scene_markdown(r["scenes"], "performance_scenes.png" if "ratio" in json.dumps(r["scenes"]) else None)
     from .ab import markdown as against_markdown
 
