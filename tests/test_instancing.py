@@ -264,9 +264,6 @@ GROUP = '<shape type="shapegroup" id="g"><shape type="sphere"/></shape>'
     (GROUP + '<shape type="instance"><ref id="g"/><float name="scale" value="2"/></shape>', "unreferenced"),
     ('<shape type="shapegroup" id="g"><shape type="cube"><medium type="homogeneous" name="interior"/></shape>'
      '</shape><shape type="instance"><ref id="g"/></shape>', "a medium on a cube inside a shapegroup"),
-    ('<shape type="shapegroup" id="g"><shape type="cube"><bsdf type="diffuse"><texture type="mesh_attribute" '
-     'name="reflectance"><string name="name" value="vertex_color"/></texture></bsdf></shape></shape>'
-     '<shape type="instance"><ref id="g"/></shape>', "mesh_attribute texture on a 'cube'"),
 ])
 def test_bad_instancing_is_refused(tmp_path, body, words):
     errors = scene_errors(write_scene(tmp_path, body))

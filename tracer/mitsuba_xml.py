@@ -162,6 +162,7 @@ class _Context:
         self.shape_media: dict[int, tuple] = {}       # a shape's index in Scene.shapes -> (interior, exterior)
         self.sensor_medium = None                     # the medium the camera sits in
         self.shape_groups: dict[int, ShapeGroup] = {}  # a shapegroup's node -> its instanced meshes
+        self.expanded: set[int] = set()               # the meshes of shapegroups copied per instance instead
 
     def error(self, node: Node | None, message: str) -> SceneError:
         if node is None:
@@ -1081,8 +1082,8 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node, outer: np.ndarray | None
                                   f"shapes: {', '.join(textures.ATTRIBUTE_SHAPES)} (the meshes with attributes)")
     if bsdf is not None and group is not None and any(
             isinstance(t, textures.MeshAttribute) for t in bsdf.every_texture()):
-        raise ctx.error(bsdfs[0], f"a mesh_attribute texture on a '{kind}' inside a shapegroup is not supported (the "
-                                  "tracer reads mesh attributes on meshes outside shapegroups)")
+        ctx.expanded.add(id(node))   # the attributes are read by primitive: such a mesh is copied per instance
+        group = None
     if bsdf is not None and bsdf.texture_of("bumpmap") is not None and kind not in bumpmap.SHAPES:
         raise ctx.error(bsdfs[0], f"a bumpmap on a '{kind}' is not supported (the tracer computes dp/dv on "
                                   f"meshes only); supported shapes: {', '.join(bumpmap.SHAPES)}")
@@ -1096,7 +1097,7 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node, outer: np.ndarray | None
             to_world = outer @ to_world
     flip = props.get("flip_normals", False, ("boolean",))
     props.ignore("silhouette_sampling_weight")   # differentiable rendering
-    name = prefix + node.attrib.get("id", f"{kind}@{node.line}")
+    name = (f"{group.name}/" if group is not None else prefix) + node.attrib.get("id", f"{kind}@{node.line}")
     module = SHAPE_PLUGINS[kind]
     held = _media(ctx, props, ("interior", "exterior"))
     if group is not None and held:
@@ -1178,9 +1179,9 @@ def _instance(ctx: _Context, scene: Scene, node: Node) -> None:
         kind = member.attrib.get("type")
         if member.tag != "shape" or kind in GROUPING:
             continue
-        if kind in INSTANCED:
-            if first:
-                ctx.attempt(_add_shape, ctx, scene, member, to_world, f"{name}/", instanced)
+        if kind in INSTANCED and id(member) not in ctx.expanded:
+            if first:      # kept once in the group's space (or, with mesh attributes, copied: ctx.expanded)
+                ctx.attempt(_add_shape, ctx, scene, member, to_world, prefix, instanced)
         else:
             ctx.attempt(_add_shape, ctx, scene, member, to_world, prefix)
 

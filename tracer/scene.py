@@ -192,7 +192,8 @@ class Scene:
             instanced = sum(len(g.to_world) for g in self.groups if g.meshes)
             out.append(f"{self.instances} instance(s) of shapegroups: their meshes instanced ({instanced} instance(s) "
                        f"of {sum(len(g.meshes) for g in self.groups)} mesh(es) held once, in a two-level BVH), "
-                       "any other shapes of theirs expanded into copies per instance (the same image as Mitsuba's instancing)")
+                       "meshes with mesh_attribute textures and any other shapes of theirs expanded into copies per instance (the "
+                       "same image as Mitsuba's instancing)")
         kinds = {b.kind for b in self.bsdfs}
         for kind in sorted(kinds & set(UNPOLARIZED)):
             out.append(f"{kind}: rendered as Mitsuba's RGB (unpolarized) variants render it; {UNPOLARIZED[kind]}")
