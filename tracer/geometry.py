@@ -358,7 +358,8 @@ class SceneGeometry:
         """Whether the surface hit is an area light's shape (either side)."""
         if not self.emitters:
             return Bool(False)
-        return surf.valid & (dr.gather(Float, self.prim_light_pdf, surf.prim, surf.valid) > 0)
+        own = self.own(surf.prim, surf.valid)
+        return own & (dr.gather(Float, self.prim_light_pdf, surf.prim, own) > 0)
 
     def environment_radiance(self, d: Array3f) -> Array3f:
         """Radiance arriving from the environment along -d (d: the direction leaving the scene)."""
