@@ -1,7 +1,7 @@
 """The renderers a comparison runs, each giving independent passes of a planned scene.
 
 - `TracerRenderer`: the tracer's `path` or branching (`report`) estimator, through its public API;
-- `MitsubaRenderer`: Mitsuba 3's `path` integrator, the ground truth;
+- `MitsubaRenderer`: Mitsuba 3 with the scene's integrator (`path` where it names none), the ground truth;
 - `ExternalRenderer`: any command that renders a scene to an EXR (a student's renderer, another tool), given
   as a template with placeholders (PLACEHOLDERS; README "validate check: the renderer contract"):
   the scene as {scene} (the original file), {scene_resolved} (one self-contained Mitsuba XML with the plan
