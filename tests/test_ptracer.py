@@ -102,3 +102,12 @@ def test_an_emitting_mesh_with_interpolated_normals_is_refused(tmp_path, mesh, f
         assert "the emitting mesh 'panel' has interpolated normals" in error
     else:
         assert tracer.load_scene(path).integrator == "ptracer"
+
+
+@pytest.mark.parametrize("outer", ["moment", "aov"])
+def test_a_wrapped_ptracer_is_refused_as_by_mitsuba(tmp_path, outer):
+    aovs = '<string name="aovs" value="d:depth"/>' if outer == "aov" else ""
+    path = edited(tmp_path, '<integrator type="ptracer">', f'<integrator type="{outer}">{aovs}<integrator type="ptracer">')
+    path.write_text(path.read_text().replace("</integrator>", "</integrator></integrator>", 1))
+    (error,) = scene_errors(path)
+    assert f'<integrator type="{outer}">: a {outer} around ptracer' in error

@@ -861,7 +861,7 @@ def _moment(ctx: _Context, node: Node, props: _Props) -> dict:
     if len(nested) != 1:
         raise ctx.error(node, f"a moment integrator with {len(nested)} nested integrators; the tracer renders "
                               "a moment around exactly one (its image is that integrator's)")
-    out = _integrator(ctx, nested[0])
+    out = _wrapped(ctx, node, nested[0])
     return {**out, "name": f"moment around {out['name']}"}
 
 
@@ -889,8 +889,17 @@ def _aov(ctx: _Context, node: Node, props: _Props) -> dict:
     if not nested:
         raise ctx.error(node, "an aov integrator without a nested integrator: its image holds no colour; the "
                               "tracer renders the image of the first nested integrator")
-    out = _integrator(ctx, nested[0])
+    out = _wrapped(ctx, node, nested[0])
     return {**out, "name": f"aov around {out['name']}"}
+
+
+def _wrapped(ctx: _Context, node: Node, nested: Node) -> dict:
+    """The integrator a moment or an aov wraps: Mitsuba's wrap sampling integrators only, not its ptracer."""
+    out = _integrator(ctx, nested)
+    if out["name"].endswith("ptracer"):
+        raise ctx.error(node, f"a {_check_type(ctx, node)} around ptracer: Mitsuba's wraps sampling integrators "
+                              "only (path, volpath, volpathmis, direct), not its particle tracer")
+    return out
 
 
 def _direct(ctx: _Context, node: Node, props: _Props) -> dict:
