@@ -72,6 +72,7 @@ def test_a_mirror_is_refused_and_the_check_sees_why(tmp_path):
     ('<sensor type="perspective">', '<sensor type="thinlens"><float name="aperture_radius" value="0.1"/>',
      "a thinlens sensor"),
     ('<emitter type="point">', '<emitter type="constant"/><emitter type="point">', "emitter 'constant'"),
+    ('<rfilter type="box"/>', '<rfilter type="box"/><integer name="crop_width" value="32"/>', "a film crop window"),
 ])
 def test_what_makes_the_images_differ_is_refused(tmp_path, old, new, words):
     path = edited(tmp_path, old, new)

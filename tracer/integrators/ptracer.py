@@ -19,6 +19,7 @@ otherwise; `differences` lists those a scene holds, conservatively from its cont
   be connected to (no sample_direction);
 - an emitting mesh with interpolated normals: the light tracer weights a point sampled on it (seen
   directly, or emitting a ray) by the cosine to the interpolated normal, `path` sees it by its geometry;
+- a film crop window: the light tracer's splats into it are not checked against `path`'s;
 - a reconstruction filter other than `box`: a splat's filter weights are normalized over its footprint,
   including pixels outside the film, where `path` divides each pixel by the weights of its own samples,
   so pixels within the filter's radius of the border (and, by the discrete sum, all) differ.
@@ -85,6 +86,8 @@ def differences(scene) -> list[str]:
     if cam is not None and cam.rfilter.kind != "box":
         out.append(f"rfilter '{cam.rfilter.kind}': a light tracer's splats are normalized over pixels outside the "
                    "film too, so its image is not path's near the border; ptracer is rendered with the box filter")
+    if cam is not None and cam.cropped:
+        out.append("a film crop window: the light tracer's splats into a crop window are not checked against path's")
     if scene.environment is not None or scene.envmap is not None:
         kind = "constant" if scene.environment is not None else "envmap"
         out.append(f"emitter '{kind}': an environment seen directly by a light tracer is not checked against path's")
