@@ -100,6 +100,8 @@ def test_exit_codes_json_and_junit(tmp_path):
     assert exit_code([Fake("agree")]) == 0
     assert exit_code([Fake("agree"), Fake("inconclusive")]) == 3
     assert exit_code([Fake("inconclusive"), Fake("disagree")]) == 1
+    assert exit_code([Fake("inconclusive")], ["timed out"]) == 4      # the run is incomplete
+    assert exit_code([Fake("disagree")], ["timed out"]) == 1
     results = [Fake("agree"), Fake("disagree"), Fake("inconclusive")]
     write_json(results, tmp_path / "r.json")
     assert json.loads((tmp_path / "r.json").read_text())["exit_code"] == 1

@@ -1,11 +1,14 @@
-"""`validate check` with a faulty renderer under test: one that hangs, crashes, exits 0 without writing, writes
-NaN or infinite pixels, the wrong size, a truncated EXR or a PNG. Each is refused in one line with exit 2 before
-Mitsuba's reference is rendered, so nothing reaches the reference cache; a damaged cache entry is rendered
-again (validation.verdict.references.load)."""
+"""`validate check` with a faulty renderer under test: one that crashes, exits 0 without writing, writes
+NaN or infinite pixels, the wrong size, a truncated EXR or a PNG. Each is refused in one line with exit 2,
+and nothing it wrote reaches the reference cache; a damaged cache entry is rendered again
+(validation.verdict.references.load). One that hangs past --timeout loses that check only: it is reported
+as timed out and the run goes on with the next scene (exit 4)."""
 from __future__ import annotations
 
+import json
 import sys
 import textwrap
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +28,7 @@ FAKE = textwrap.dedent('''
     size = dict(a.split("=") for a in args if "=" in a)
     w, h = int(size["width"]), int(size["height"])
     image = np.full((h, w, 3), 0.5, np.float32)
-    if fault == "hang":
+    if fault == "hang" or (fault == "hang-slow" and "slow" in args[1]):
         time.sleep(600)
     if fault == "crash":
         os.kill(os.getpid(), signal.SIGSEGV)
@@ -59,7 +62,6 @@ def workdir(tmp_path_factory):
 
 
 @pytest.mark.parametrize("fault, message", [
-    ("hang", "did not finish pass 0 within --timeout 3 s"),
     ("crash", "killed by signal SIGSEGV on pass 0"),
     ("silent", "exited 0 but wrote no {output} file on pass 0"),
     ("nan", "1 pixels with NaN or infinite values on pass 0"),
@@ -82,6 +84,42 @@ def test_a_faulty_renderer_is_refused_in_one_line(workdir, monkeypatch, capsys, 
     assert [p for p in files if workdir / p not in cached] == [Path("renderer.py")], files
     for path in cached:
         assert references.load(path, path.stem.rsplit("-", 1)[-1]) is not None, path
+
+
+CONSTANT = textwrap.dedent('''
+    <scene version="3.0.0">
+        <integrator type="path"/>
+        <sensor type="perspective">
+            <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>
+        </sensor>
+        <emitter type="constant"><rgb name="radiance" value="0.5"/></emitter>
+    </scene>
+''')
+
+
+def test_a_timed_out_check_is_reported_and_the_run_goes_on(tmp_path, monkeypatch, capsys):
+    """Two scenes, a renderer that hangs on the first: that check is stopped at --timeout and reported as
+    timed out (its line, the summary, the JSON, the JUnit file), the second still gets its verdict, and the
+    exit status says the run is incomplete. Both scenes are a constant environment of 0.5, which the fake
+    renders exactly."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "renderer.py").write_text(FAKE)
+    for stem in ("a_slow", "b_fast"):
+        (tmp_path / f"{stem}.xml").write_text(CONSTANT)
+    command = f"{sys.executable} {tmp_path / 'renderer.py'} hang-slow {{scene}} -o {{output}} {{defines}}"
+    code = cli.main(["check", "a_slow.xml", "b_fast.xml", "--renderer", command, "--label", "fake", "--passes", "3",
+                     "--spp", "4", "--size", "8", "--timeout", "3", "--json", "out/c.json", "--junit", "out/c.xml"])
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert code == 4, lines
+    assert lines[0].startswith("timed out    a_slow.xml [fake, max_depth -1]: no verdict: renderer did not finish "
+                               "pass 0 within --timeout 3 s (stopped)"), lines
+    assert lines[1].startswith("agree        b_fast.xml [fake, max_depth -1]"), lines
+    assert lines[2] == "validate check: 2 checks, 1 agree, 0 disagree, 0 inconclusive, 1 timed out (exit 4)", lines
+    report = json.loads((tmp_path / "out/c.json").read_text())
+    assert report["exit_code"] == 4 and [c["verdict"] for c in report["checks"]] == ["agree"]
+    assert [t["scene"] for t in report["timed_out"]] == ["a_slow.xml"]
+    suite = ET.parse(tmp_path / "out/c.xml").getroot().find("testsuite")
+    assert (suite.get("tests"), suite.get("errors"), suite.get("failures")) == ("2", "1", "0")
 
 
 def test_the_fake_renderer_itself_is_accepted(tmp_path, monkeypatch):

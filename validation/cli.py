@@ -16,6 +16,7 @@ import argparse
 import os
 import shlex
 import sys
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -158,7 +159,8 @@ def _session(args):
 
 
 EXIT_NOTE = ("exit status: 0 every check agrees (or is skipped: the renderer does not support the scene), 1 any "
-             "disagrees, 3 any is inconclusive (and none disagrees), 2 usage or input error")
+             "disagrees, 4 a check timed out (--timeout) and none disagrees: the run is incomplete, 3 any is inconclusive "
+             "(and none disagrees or timed out), 2 usage or input error")
 
 
 def _check_parser(sub) -> None:
@@ -179,7 +181,8 @@ def _check_parser(sub) -> None:
                      f"{EXIT_UNSUPPORTED}: the scene is unsupported (reported as skipped). README: the renderer "
                      "contract")
     k.add_argument("--timeout", type=float, metavar="SECONDS", help="--renderer: the most one call may take; a call "
-                   "that takes longer is stopped and the check ends with exit 2 (default: no limit)")
+                   "that takes longer is stopped (with its children), that check is reported as timed out and the run goes on "
+                   "with the next; exit 4 if none disagrees (default: no limit)")
     k.add_argument("--mistake", choices=("extra-bounce", "twosided-light", "default-filter", "dim-emission",
                                          "wide-fov"), help="--renderer cycles|luxcore: inject a conversion mistake "
                    "(to show the check catches it; reports/peers.md)")
@@ -246,10 +249,10 @@ def _check(args) -> int:
     from tracer.cli import parse_defines
     from tracer.estimators import BranchingEstimator
 
-    from .verdict.check import Settings, exit_code, prepare, run, write_json, write_junit
+    from .verdict.check import Settings, TimedOut, exit_code, prepare, run, write_json, write_junit
     from .verdict.peers import PEERS, PeerRenderer
     from .verdict.references import CACHE_VARIABLE
-    from .verdict.renderers import ExternalRenderer, RendererUnsupported, TracerRenderer
+    from .verdict.renderers import ExternalRenderer, RendererTimeout, RendererUnsupported, TracerRenderer
     from .verdict.scenefile import ScenePlanError
 
     defines = parse_defines(args.defines)
@@ -291,26 +294,33 @@ def _check(args) -> int:
                     planned.append((prepare(scene, renderer, depth, defines, settings), renderer))
                 except RendererUnsupported as e:
                     skipped.append(_skip(scene, renderer, depth, e))
-    results = []
+    results, timed_out = [], []
     for line in skipped:
         print(line.line(), flush=True)
     for scene_plan, renderer in planned:
+        start = time.perf_counter()
         try:
             result = run(scene_plan, renderer, settings, args.output)
         except RendererUnsupported as e:
             skipped.append(_skip(scene_plan.path, renderer, scene_plan.max_depth, e))
             print(skipped[-1].line(), flush=True)
             continue
+        except RendererTimeout as e:     # this check is lost, not the run: go on with the next
+            timed_out.append(TimedOut(str(scene_plan.path), renderer.label, scene_plan.max_depth, str(e),
+                                      time.perf_counter() - start))
+            print(timed_out[-1].line(), flush=True)
+            continue
         print(result.line(), flush=True)
         results.append(result)
     if args.json:
-        write_json(results, args.json, skipped)
+        write_json(results, args.json, skipped, timed_out)
     if args.junit:
-        write_junit(results, args.junit, skipped)
-    code = exit_code(results)
-    print(f"validate check: {len(results) + len(skipped)} checks, " + ", ".join(
+        write_junit(results, args.junit, skipped, timed_out)
+    code = exit_code(results, timed_out)
+    print(f"validate check: {len(results) + len(skipped) + len(timed_out)} checks, " + ", ".join(
         f"{sum(r.verdict == v for r in results)} {v}" for v in ("agree", "equivalent", "disagree", "inconclusive")
         if v in ("disagree", "inconclusive") or any(r.verdict == v for r in results)) +
+        (f", {len(timed_out)} timed out" if timed_out else "") +
         (f", {len(skipped)} skipped: unsupported" if skipped else "") + f" (exit {code})")
     return code
 

@@ -37,6 +37,7 @@ from .stats import POWER, Comparison, Margin, block_means, compare
 REPORT_REFERENCE_SPP = 8    # Mitsuba samples per pass per camera ray of the branching estimator
 EXIT_CODES = {"agree": 0, "equivalent": 0, "disagree": 1, "inconclusive": 3}
 EXIT_USAGE = 2
+EXIT_INCOMPLETE = 4     # a check was stopped (--timeout) and none disagrees: the run is incomplete
 
 
 @dataclass(frozen=True)
@@ -128,6 +129,25 @@ class Skipped:
     def as_dict(self) -> dict:
         return {"scene": self.scene, "renderer": self.renderer, "max_depth": self.max_depth,
                 "verdict": "skipped: unsupported", "note": self.reason}
+
+
+@dataclass
+class TimedOut:
+    """A check stopped because a call of the renderer under test outlived --timeout: no verdict; the run goes
+    on with the next check."""
+    scene: str
+    renderer: str
+    max_depth: int
+    reason: str
+    seconds: float
+
+    def line(self) -> str:
+        return (f"{'timed out':<12} {self.scene} [{self.renderer}, max_depth {self.max_depth}]: no verdict: "
+                f"{self.reason}, {self.seconds:.1f} s")
+
+    def as_dict(self) -> dict:
+        return {"scene": self.scene, "renderer": self.renderer, "max_depth": self.max_depth,
+                "verdict": "timed out", "note": self.reason, "seconds": self.seconds}
 
 
 def _pct(x: float) -> str:
@@ -323,16 +343,19 @@ def _slug(text: str) -> str:
     return "".join(ch if ch.isalnum() else "-" for ch in text).strip("-")[:40]
 
 
-def exit_code(results: list[CheckResult]) -> int:
+def exit_code(results: list[CheckResult], timed_out: list[TimedOut] = ()) -> int:
+    """1 if a check disagrees; else EXIT_INCOMPLETE if one timed out; else 3 if one is inconclusive; else 0."""
     verdicts = {r.verdict for r in results}
-    return 1 if "disagree" in verdicts else 3 if "inconclusive" in verdicts else 0
+    return (1 if "disagree" in verdicts else EXIT_INCOMPLETE if timed_out else 3 if "inconclusive" in verdicts
+            else 0)
 
 
-def write_json(results: list[CheckResult], path: Path, skipped: list[Skipped] = ()) -> None:
+def write_json(results: list[CheckResult], path: Path, skipped: list[Skipped] = (),
+               timed_out: list[TimedOut] = ()) -> None:
     from ..reports.provenance import write_json as write
 
-    write(path, {"exit_code": exit_code(results), "checks": [r.as_dict() for r in results],
-                 "skipped": [s.as_dict() for s in skipped]})
+    write(path, {"exit_code": exit_code(results, timed_out), "checks": [r.as_dict() for r in results],
+                 "skipped": [s.as_dict() for s in skipped], "timed_out": [t.as_dict() for t in timed_out]})
 
 
 def _properties(r: CheckResult) -> dict[str, str]:
@@ -346,13 +369,14 @@ def _properties(r: CheckResult) -> dict[str, str]:
     return out
 
 
-def write_junit(results: list[CheckResult], path: Path, skipped: list[Skipped] = ()) -> None:
-    """JUnit XML: one test case per scene x renderer x depth; disagree is a failure, inconclusive and
-    unsupported skipped; each case's properties carry the detectable bias and the margin."""
-    suite = ET.Element("testsuite", name="validate check", tests=str(len(results) + len(skipped)),
-                       failures=str(sum(r.verdict == "disagree" for r in results)),
+def write_junit(results: list[CheckResult], path: Path, skipped: list[Skipped] = (),
+                timed_out: list[TimedOut] = ()) -> None:
+    """JUnit XML: one test case per scene x renderer x depth; disagree is a failure, a timed-out check an error,
+    inconclusive and unsupported skipped; each case's properties carry the detectable bias and the margin."""
+    suite = ET.Element("testsuite", name="validate check", tests=str(len(results) + len(skipped) + len(timed_out)),
+                       failures=str(sum(r.verdict == "disagree" for r in results)), errors=str(len(timed_out)),
                        skipped=str(sum(r.verdict == "inconclusive" for r in results) + len(skipped)),
-                       time=f"{sum(r.seconds for r in results):.3f}")
+                       time=f"{sum(r.seconds for r in [*results, *timed_out]):.3f}")
     for r in results:
         case = ET.SubElement(suite, "testcase", classname=f"validate.check.{Path(r.scene).stem}",
                              name=f"{r.renderer} max_depth={r.max_depth}", time=f"{r.seconds:.3f}")
@@ -368,6 +392,10 @@ def write_junit(results: list[CheckResult], path: Path, skipped: list[Skipped] =
         case = ET.SubElement(suite, "testcase", classname=f"validate.check.{Path(r.scene).stem}",
                              name=f"{r.renderer} max_depth={r.max_depth}", time="0")
         ET.SubElement(case, "skipped", message=f"unsupported: {r.reason}")
+    for r in timed_out:
+        case = ET.SubElement(suite, "testcase", classname=f"validate.check.{Path(r.scene).stem}",
+                             name=f"{r.renderer} max_depth={r.max_depth}", time=f"{r.seconds:.3f}")
+        ET.SubElement(case, "error", message=f"timed out: {r.reason}").text = r.line()
     root = ET.Element("testsuites")
     root.append(suite)
     from ..reports.provenance import write_text

@@ -44,6 +44,11 @@ class RendererError(UserError, RuntimeError):
     """The renderer under test failed or wrote something unusable (reported in one line)."""
 
 
+class RendererTimeout(RendererError):
+    """A call of the renderer outlived --timeout and was stopped: that check is recorded as timed out and the
+    run goes on with the next one."""
+
+
 class RendererUnsupported(UserError, RuntimeError):
     """The renderer does not render this scene (its exit status EXIT_UNSUPPORTED, or an adapter's refusal):
     the check reports it as skipped."""
@@ -199,7 +204,7 @@ class ExternalRenderer:
             out, err = proc.communicate(timeout=self.timeout)
         except subprocess.TimeoutExpired:
             _kill_session(proc)
-            raise RendererError(f"renderer did not finish pass {k} within --timeout {self.timeout:g} s (stopped)") \
+            raise RendererTimeout(f"renderer did not finish pass {k} within --timeout {self.timeout:g} s (stopped)") \
                 from None
         except BaseException:
             _kill_session(proc)
