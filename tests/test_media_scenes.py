@@ -22,16 +22,8 @@ SCENES = ["tests/scenes/participating_media/" + name for name in (
     "test_surf_area_light_volpath.xml", "test_hetero_spectral_sigmat_volpathmis.xml",
     "test_homo_spectral_sigmat_volpathmis.xml")] + ["docs/scenes/medium_homogeneous_sss.xml",
                                                     "docs/scenes/medium_homogeneous_sss_textured.xml"]
-# A known disagreement, its cause found (reports/media.md, "Causes"): the tracer renders volpathmis with volpath's
-# estimator, whose G channel is heavy-tailed in this medium (sigma_t 10, 2, 10), where Mitsuba's spectral MIS is
-# not; the t-test rejects one G block. Strict: passing means the tracer changed, and the mark must go.
-HEAVY_TAILED = pytest.mark.xfail(strict=True, reason="volpath's estimator for volpathmis: G heavy-tailed "
-                                 "(reports/media.md, Causes)")
 
-
-CASES = [pytest.param(name, depth, id=f"{Path(name).stem}-{depth}",
-                      marks=[HEAVY_TAILED] if "homo_spectral_sigmat_volpathmis" in name else [])
-         for name in SCENES for depth in (2, 6)]
+CASES = [pytest.param(name, depth, id=f"{Path(name).stem}-{depth}") for name in SCENES for depth in (2, 6)]
 
 
 def test_the_first_default_wins_across_includes(tmp_path):

@@ -57,7 +57,8 @@ class PathEstimator:
         rng = seeded_rng(sample, state)
         o, d, t_min, t_max, x, y = primary_rays(scene.camera, pixel, rng)
         if scene.volumetric:
-            L, count = volpath_radiance(geo, o, d, t_min, t_max, rng, opaque_u32(depth), opaque_u32(scene.rr_depth))
+            L, count = volpath_radiance(geo, o, d, t_min, t_max, rng, opaque_u32(depth), opaque_u32(scene.rr_depth),
+                                        scene.spectral_mis)
         else:
             L, count = path_radiance(geo, o, d, t_min, t_max, rng, opaque_u32(depth), opaque_u32(scene.rr_depth),
                                      Strategies(*scene.shading_samples), scene.hide_emitters)

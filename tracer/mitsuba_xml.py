@@ -742,6 +742,7 @@ def _build_scene(ctx: _Context, root: Node) -> Scene | None:
         rr_depth=int(integrator.get("rr_depth", 5)),
         integrator=integrator.get("name", "path"),
         shading_samples=integrator.get("shading_samples", (1, 1)),
+        spectral_mis=bool(integrator.get("spectral_mis", False)),
         sampler=sampler.get("kind", "independent"),
         path=ctx.path,
         hide_emitters=HIDING.get(integrator.get("name", "path").split()[-1]) if integrator.get("hide_emitters") else None,
@@ -836,7 +837,7 @@ def _integrator(ctx: _Context, node: Node) -> dict:
     out = {"max_depth": props.get("max_depth", -1, ("integer",)), "rr_depth": props.get("rr_depth", 5, ("integer",)),
            "hide_emitters": props.get("hide_emitters", False, ("boolean",))}
     props.ignore("block_size", "samples_per_pass")        # how work is scheduled: not the estimate
-    props.ignore("use_spectral_mis")                       # volpathmis's MIS over channels: the noise, not the image
+    out["spectral_mis"] = kind == "volpathmis" and props.get("use_spectral_mis", True, ("boolean",))
     props.finish()
     if out["hide_emitters"] and kind not in HIDING:
         raise ctx.error(props.values["hide_emitters"], f"hide_emitters = true with {kind}: the tracer hides emitters "

@@ -102,6 +102,7 @@ class Scene:
     instances: int = 0                            # Mitsuba `instance`s (their meshes in `groups`, the rest expanded)
     groups: list = field(default_factory=list)    # of tracer.shapes.instance.ShapeGroup: instanced meshes
     shading_samples: tuple[int, int] = (1, 1)     # `direct`'s emitter and BSDF samples (integrators.path.Strategies)
+    spectral_mis: bool = False                    # volpathmis's balance heuristic over the channels' distance sampling
     lights: list = field(default_factory=list)    # of the kinds in tracer.lights (area lights: emitting shapes)
     path: Path | None = None
     media: list = field(default_factory=list)        # of tracer.media.Medium, in the order of their codes 1, 2, ...
@@ -178,8 +179,13 @@ class Scene:
                        f"sample, weighted as Mitsuba weights {self.shading_samples[0]} emitter and "
                        f"{self.shading_samples[1]} BSDF samples (the same expected image, other noise)")
         if self.integrator.endswith("volpathmis"):
-            out.append("volpathmis: rendered with the tracer's volpath; Mitsuba's spectral MIS over the RGB channels "
-                       "changes the noise, not the expected image")
+            out.append("volpathmis: the tracer's volpath with spectral MIS (the channels' distance sampling weighted "
+                       "by the one-sample balance heuristic, as Mitsuba's use_spectral_mis); emitter and BSDF/phase "
+                       "sampling weighted by the power heuristic as in volpath (Mitsuba's volpathmis: the balance "
+                       "heuristic), which changes the noise, not the expected image"
+                       if self.spectral_mis else
+                       "volpathmis with use_spectral_mis = false: rendered with the tracer's volpath (the same "
+                       "expected image, other noise)")
         if self.integrator.endswith("ptracer"):
             out.append(PTRACER_NOTE)
         if self.hide_emitters == "pass":
