@@ -33,7 +33,8 @@ def test_checkerboard_agrees_with_mitsuba(max_depth):
 @pytest.mark.slow
 def test_fails_with_u_and_v_swapped(monkeypatch):
     lookup = TextureTables.eval
-    monkeypatch.setattr(TextureTables, "eval", lambda self, index, uv, active: lookup(self, index, uv[::-1], active))
+    monkeypatch.setattr(TextureTables, "eval", lambda self, index, uv, active, *args, **kwargs:
+                        lookup(self, index, uv[::-1], active, *args, **kwargs))
     ref = mitsuba_passes(SCENE, PASSES, SPP, width=SIZE, height=SIZE, max_depth=2)
     result = compare_passes(tracer_passes(2), ref, ALPHA)
     assert result.verdict == "disagree", result.summary()
