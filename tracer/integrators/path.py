@@ -16,6 +16,7 @@ from .. import compile_clock
 from ..geometry import SceneGeometry
 from ..materials import SurfaceBSDF
 from ..materials.bsdf import DELTA, has_flag
+from ..materials.flags import BSDFSample
 from ..jit import INF, NO_PRIM, PCG32, Array2f, Array3f, Bool, Float, UInt32
 from .direct import power_heuristic, sample_direct
 
@@ -160,18 +161,39 @@ def _vertex(geo, rng, path: PathState, max_depth, strategies: Strategies, hide: 
     passed = (depth == 0) & geo.emits(surf) if hide == "pass" else Bool(False)
     going_on = active_next                  # passing an emitting shape goes on
     active_next = active_next & ~passed     # a new array: going_on keeps its own
-    bsdf = SurfaceBSDF(geo.materials, surf, wi, active_next)
-    if geo.has_lights and strategies.emitter:
-        nee = active_next & bsdf.smooth & bsdf.lit
-        geo.keep(L, nee, active_next, rng, bsdf.state())
-        ds = sample_direct(geo, surf, bsdf, rng.next_float32(), rng.next_float32(), rng.next_float32(), nee)
-        L += dr.select(nee, beta * ds.value * power_heuristic(ds.pdf_light * c_light, ds.pdf_bsdf * c_bsdf),
-                       Array3f(0.0))
-        rays += dr.select(nee, 1, 0)
-    u1 = rng.next_float32()
-    bs, weight = bsdf.sample(u1, Array2f(rng.next_float32(), rng.next_float32()), active_next)
+    if geo.batch:               # its ray queries launch kernels of their own (a wavefront): no symbolic branch
+        L, rays, bs, weight = _scatter(geo, rng, surf, wi, beta, L, rays, active_next, strategies)
+    else:                       # a path's last vertex scatters nothing: a packet of such lanes skips the work
+        L, rays, bs, weight, rng.state = dr.if_stmt(
+            (L, rays, rng.state), going_on,
+            lambda L, rays, state: _scatter(geo, PCG32(rng), surf, wi, beta, L, rays, active_next, strategies,
+                                            state),
+            lambda L, rays, state: (L, rays, BSDFSample(Array3f(0.0), Float(0.0), Float(1.0), UInt32(0)),
+                                    Array3f(0.0), state),
+            label="scatter")
     path.L, path.rays = L, rays
     path.beta, path.eta = dr.select(passed, beta, beta * weight), dr.select(passed, path.eta, path.eta * bs.eta)
     path.o, path.d, path.skip = surf.p, dr.select(passed, d, bs.wo), surf.prim
     path.prev_delta, path.prev_pdf = passed | has_flag(bs.sampled_type, DELTA), bs.pdf
     return going_on, passed
+
+
+def _scatter(geo, rng, surf, wi: Array3f, beta: Array3f, L: Array3f, rays: UInt32, active: Bool,
+             strategies: Strategies, state=None):
+    """Where `active`: the shadow ray (MIS-weighted) added to L and counted in rays, and the next direction
+    sampled from the BSDF; returns L, rays, the BSDF sample and its weight. Given `state` (as a branch of
+    dr.if_stmt, on a copy of rng): rng draws from that state, and its state after the draws is returned too."""
+    if state is not None:
+        rng.state = state
+    c_light, c_bsdf = strategies.fractions
+    bsdf = SurfaceBSDF(geo.materials, surf, wi, active)
+    if geo.has_lights and strategies.emitter:
+        nee = active & bsdf.smooth & bsdf.lit
+        geo.keep(L, nee, active, rng, bsdf.state())
+        ds = sample_direct(geo, surf, bsdf, rng.next_float32(), rng.next_float32(), rng.next_float32(), nee)
+        L += dr.select(nee, beta * ds.value * power_heuristic(ds.pdf_light * c_light, ds.pdf_bsdf * c_bsdf),
+                       Array3f(0.0))
+        rays += dr.select(nee, 1, 0)
+    u1 = rng.next_float32()
+    bs, weight = bsdf.sample(u1, Array2f(rng.next_float32(), rng.next_float32()), active)
+    return (L, rays, bs, weight) if state is None else (L, rays, bs, weight, rng.state)

@@ -775,9 +775,9 @@ def room_profile_markdown(p: dict | None) -> list[str]:
     lines += [f"| the render | {t['full']:.3f} | 100% |", "",
               "Ray queries are the first two rows; for the path tracer to reach 0.75 of the ceiling, everything "
               f"else would have to take at most {max(full['rays'] / (0.75 * c['rays_per_cpu_second']) - t['closest-hit queries'] - t['shadow-ray queries'], 0):.3f} "
-              "CPU s. In one kernel a lane's masked-off code runs with its packet: each path's last vertex "
-              "(depth + 1 = max_depth) samples a light, tests a shadow ray and samples its BSDF for no path, one "
-              f"vertex's shading in {s['max_depth']}.", ""]
+              "CPU s. In one kernel a lane's masked-off code runs with its packet unless no lane of the packet "
+              "takes it: a packet's paths reach their last vertex (depth + 1 = max_depth) together, where none "
+              "samples a light or its BSDF.", ""]
     return lines
 
 

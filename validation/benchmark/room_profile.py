@@ -15,10 +15,10 @@ unblocked; the rest of next-event estimation (light sample, BSDF evaluation, MIS
 queries; camera and film = camera - its closest hits; each bounce's surface, BSDF sampling and Russian
 roulette = no_nee - camera - the bounces' closest hits. Images of the ablated variants are discarded.
 
-In one kernel a lane's masked-off code still runs with its packet: the camera variant's one vertex runs its
-BSDF sampling and (masked) light sample and shadow ray like any other, and every render's last vertex
-(depth + 1 = max_depth) runs them for no path. The camera phase therefore holds one vertex's shading, and
-the full render max_depth vertices' worth where max_depth - 1 contribute.
+In one kernel a lane's masked-off code runs with its packet unless no lane of the packet takes it. A packet's
+paths reach their last vertex (depth + 1 = max_depth) together, and there the path tracer samples no light and
+no BSDF (integrators.path): the camera variant's one vertex scatters nowhere, and the full render scatters
+at max_depth - 1 of its max_depth vertices.
 """
 from __future__ import annotations
 
@@ -104,7 +104,7 @@ def phases(p: dict) -> dict:
     return {"closest-hit queries": closest / rate,
             "shadow-ray queries": shadow,
             "light sample, BSDF evaluation and MIS": t["full"] - t["no_nee"] - shadow,
-            "camera rays, film and one vertex's shading, masked": t["camera"] - camera_hits / rate,
+            "camera rays, their surfaces, emission and film": t["camera"] - camera_hits / rate,
             "surface, BSDF sampling, Russian roulette": t["no_nee"] - t["camera"] - (closest - camera_hits) / rate,
             "full": t["full"]}
 
