@@ -36,19 +36,7 @@ MAX_SPP = 128
 RESULTS = Path(".cache/media")   # each check's outcome, kept as it arrives: an interrupted run resumes
 
 # What was found about a disagreement, by scene (relative to the data's folder); the report quotes it.
-CAUSES: dict[str, str] = {
-    f"{MEDIA_FOLDER}/test_homo_spectral_sigmat_volpathmis.xml": (
-        "(checked after the run, when the tracer had learnt volpathmis; Follow-up checks) one block's G channel "
-        "rejected at both depths (p = 5e-9 and 3e-10), image mean -1.3% and +3.1%, with a detectable G bias of 11% "
-        "and 97%: the G channel's noise is heavy-tailed. The tracer renders volpathmis with volpath's estimator "
-        "(same expected image): a distance sampled with the R or B extinction (scale x sigma_t = 10) weights G "
-        "(2) by tr / pdf, which grows as exp(8 t) with the distance t, so rare paths deep in the medium carry very large G weights, where "
-        "Mitsuba's volpathmis divides by the channels' mean density (spectral MIS: bounded weights). Pass means "
-        "of so skewed a channel are not near-normal, and the t-test's rejection is not evidence of bias: the "
-        "same scene rendered with volpath on both sides (-D integrator=volpath, both heavy-tailed) agrees, "
-        "G detectable 25%. Not settled: the check cannot show the tracer's expected image equal to Mitsuba's "
-        "here until the tracer's volpathmis uses spectral MIS (or the check trusts such blocks less)."),
-}
+CAUSES: dict[str, str] = {}
 # Sharper checks of the scenes whose agreement left the most room (the largest difference, the largest
 # detectable bias), by scene: the command and its verdict lines, quoted by the report.
 FOLLOW_UPS: dict[str, list[str]] = {
@@ -70,29 +58,6 @@ FOLLOW_UPS: dict[str, list[str]] = {
         "agree        [tracer path, max_depth 16] (the same command without --max-depth): 0/51 tests rejected, worst "
         "block (0, 3) G p = 0.0069, image mean -0.05%; detectable bias (80% power): image mean 3%/2.9%/3% (RGB), "
         "median block 2.5%; 16 x 256 spp vs Mitsuba 16 x 256 spp, 16 x 16, 54.2 s"],
-    f"{MEDIA_FOLDER}/test_hetero_spectral_sigmat_volpathmis.xml": [
-        "validate check MITSUBA_DATA_DIR/tests/scenes/participating_media/test_hetero_spectral_sigmat_volpathmis.xml "
-        "--max-depth 3 --size 16 --spp 32 --max-spp 128 (the suite's settings; the tracer of 19c48e2, which renders "
-        "volpathmis)",
-        "agree        [tracer path, max_depth 3]: 0/51 tests rejected, worst block (2, 0) G p = 0.044, image mean "
-        "+0.48%; detectable bias (80% power): image mean 4.6%/3.3%/5.2% (RGB), median block 11%; 16 x 32 spp vs "
-        "Mitsuba 16 x 32 spp (stage 1 of 3, 512 spp in all), 16 x 16, 48.5 s",
-        "agree        [tracer path, max_depth 6] (without --max-depth): 0/51 tests rejected, worst block (3, 1) R "
-        "p = 0.032, image mean +0.26%; detectable bias (80% power): image mean 6.3%/3.7%/5% (RGB), median block "
-        "12%; 16 x 32 spp vs Mitsuba 16 x 32 spp (stage 1 of 3, 512 spp in all), 16 x 16, 35.0 s"],
-    f"{MEDIA_FOLDER}/test_homo_spectral_sigmat_volpathmis.xml": [
-        "validate check MITSUBA_DATA_DIR/tests/scenes/participating_media/test_homo_spectral_sigmat_volpathmis.xml "
-        "--max-depth 3 --size 16 --spp 32 --max-spp 128 (as above; Causes)",
-        "disagree     [tracer path, max_depth 3]: 1/51 tests rejected, worst block (1, 2) G p = 5.1e-09, image mean "
-        "-1.31%; detectable bias (80% power): image mean 2.8%/11%/6% (RGB), median block 16%; 16 x 32 spp vs "
-        "Mitsuba 16 x 32 spp (stage 1 of 3, 512 spp in all), 16 x 16, 39.6 s",
-        "disagree     [tracer path, max_depth 6] (without --max-depth): 1/51 tests rejected, worst block (1, 2) G "
-        "p = 2.9e-10, image mean +3.11%; detectable bias (80% power): image mean 2.7%/97%/6.8% (RGB), median block "
-        "17%; 16 x 32 spp vs Mitsuba 16 x 32 spp (stage 1 of 3, 512 spp in all), 16 x 16, 48.8 s",
-        "agree        [tracer path, max_depth 3] with -D integrator=volpath (both sides volpath): 0/51 tests "
-        "rejected, worst block (2, 2) B p = 0.025, image mean -2.13%; detectable bias (80% power): image mean "
-        "3%/25%/6.2% (RGB), median block 18%; 16 x 32 spp vs Mitsuba 16 x 32 spp (stage 1 of 3, 512 spp in all), "
-        "16 x 16, 34.3 s"],
 }
 
 
@@ -234,8 +199,7 @@ def markdown(outcomes: list[MediaOutcome], command: str) -> str:
     if FOLLOW_UPS:
         lines += ["", "## Follow-up checks", "",
                   "Run by hand after the suite, quoted here: the largest difference and the largest detectable bias "
-                  "above, checked again with 8 times the samples and another seed (the tracer of a15e6f2); the "
-                  "volpathmis scenes, refused in the run, with the suite's settings once the tracer rendered them:", ""]
+                  "above, checked again with 8 times the samples and another seed (the tracer of a15e6f2):", ""]
         for scene, (cmd, *verdicts) in FOLLOW_UPS.items():
             lines += [f"- {scene}: `{cmd}`", "", "  ```"] + [f"  {v}" for v in verdicts] + ["  ```"]
     lines += ["", "## Machine and versions", ""] + environment(command)
