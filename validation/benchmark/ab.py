@@ -58,7 +58,7 @@ def against(progress, tree: Path, rounds: int) -> dict:
         for key, runs in (("wall", seconds), ("cpu", cpu)):
             this, other = statistics.median(runs["this"]), statistics.median(runs["other"])
             rows[scene][key] = {"this": this, "other": other, "ratio": this / other}
-    return {"tree": str(tree), "commits": {"this": _commit(ROOT), "other": _commit(tree)}, "rounds": rounds,
+    return {"commits": {"this": _commit(ROOT), "other": _commit(tree)}, "rounds": rounds,
             "rows": rows}
 
 
