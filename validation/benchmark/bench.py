@@ -24,8 +24,7 @@ from tracer.estimators import REPORT_DEPTH_OFFSET
 
 from .instances import instances as instance_section, markdown as instance_markdown
 from .mesh_scene import write_mesh_scene
-from ..verdict.scene_variants import write_variant
-from .scene_bench import markdown as scene_markdown, scenes as scene_section
+from .scene_bench import light_replaced, markdown as scene_markdown, scenes as scene_section
 
 ROOT = Path(__file__).resolve().parents[2]
 ROOM = ROOT / "mitsuba_scenes" / "hexagon_room.xml"
@@ -284,15 +283,11 @@ def specialisation(progress) -> dict:
 def _split_light_room(folder: Path) -> Path:
     """The room with its light cut into two halves of the same radiance: the same image in expectation,
     but a kernel that selects between two lights."""
-    text = ROOM.read_text()
-    start = text.index('<shape type="rectangle" id="light">')
-    end = text.index("</shape>", start) + len("</shape>")
     half = ('<shape type="rectangle"><transform name="to_world"><rotate x="1" angle="180"/>'
             '<scale x="1" y="1"/><translate x="{x}" y="0" z="4.9"/></transform>'
             '<bsdf type="diffuse"><rgb name="reflectance" value="0"/></bsdf>'
             '<emitter type="area"><rgb name="radiance" value="32"/></emitter></shape>')
-    return write_variant(ROOM, text[:start] + half.format(x=3) + half.format(x=5) + text[end:], folder,
-                         "hexagon_room_two_lights")
+    return light_replaced(ROOM, half.format(x=3) + half.format(x=5), folder, "hexagon_room_two_lights")
 
 
 def cold_start(progress) -> dict:

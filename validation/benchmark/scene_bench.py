@@ -45,9 +45,6 @@ def generated() -> list[tuple[str, Path]]:
 def tiled_light_cornell_box(folder: Path, n: int = 16) -> Path:
     """The Cornell box with its light cut into n x n rectangles of the same radiance (the same image in
     expectation): a scene of n^2 emitters."""
-    text = (PROJECT / "cornell_box.xml").read_text()
-    start = text.index('<shape type="rectangle" id="light">')
-    end = text.index("</shape>", start) + len("</shape>")
     tile = ('<shape type="rectangle"><transform name="to_world"><scale x="{sx}" y="{sy}"/>'
             '<translate x="{x}" y="{y}"/><rotate x="1" angle="90"/><translate y="0.99"/></transform>'
             '<bsdf type="diffuse"><rgb name="reflectance" value="0"/></bsdf>'
@@ -55,8 +52,16 @@ def tiled_light_cornell_box(folder: Path, n: int = 16) -> Path:
     sx, sy = 0.23 / n, 0.19 / n
     tiles = "".join(tile.format(sx=sx, sy=sy, x=-0.23 + sx * (2 * i + 1), y=-0.19 + sy * (2 * j + 1))
                     for i in range(n) for j in range(n))
-    return write_variant(PROJECT / "cornell_box.xml", text[:start] + tiles + text[end:], folder,
-                         f"cornell_box_{n}x{n}_lights")
+    return light_replaced(PROJECT / "cornell_box.xml", tiles, folder, f"cornell_box_{n}x{n}_lights")
+
+
+def light_replaced(scene: Path, shapes: str, folder: Path, name: str) -> Path:
+    """`scene` with its `<shape type="rectangle" id="light">` element replaced by the XML `shapes`, written
+    into `folder` as `name`."""
+    text = scene.read_text()
+    start = text.index('<shape type="rectangle" id="light">')
+    end = text.index("</shape>", start) + len("</shape>")
+    return write_variant(scene, text[:start] + shapes + text[end:], folder, name)
 
 
 def candidates(mitsuba_data: Path | None, globs: list[str] | None = None) -> list[tuple[str, Path]]:
