@@ -186,14 +186,17 @@ def test_the_scenes_section_times_both_renderers_interleaved_and_labels_its_caps
     chosen = scene_bench.candidates(None, ["mitsuba_scenes/cornell_box.xml"])
     assert [n for n, _ in chosen] == ["mitsuba_scenes/cornell_box.xml"]
     order = []
-    monkeypatch.setattr(scene_bench, "_timed", lambda command, env: (order.append(command[0]) or 1.0, ""))
+    monkeypatch.setattr(scene_bench, "_timed",       # the tracer's CPU seconds half Mitsuba's
+                        lambda command, env: (order.append(command[0]) or 1.0,
+                                              4.0 if command[0].endswith("mitsuba") else 2.0, ""))
     section = scene_bench.scenes(lambda _: None, globs=["mitsuba_scenes/cornell_box.xml"], scale=0.1, runs=2)
     row = section["rows"]["mitsuba_scenes/cornell_box.xml"]
-    assert row["tracer"]["seconds"] == [1.0, 1.0] and row["ratio"] == 1.0
+    assert row["tracer"]["seconds"] == [1.0, 1.0] and row["ratio"] == 1.0 and row["cpu_ratio"] == 0.5
     mitsuba = [c.endswith("mitsuba") for c in order]
     assert mitsuba == [False, True, False, True, True, False]     # warm-up, then each renderer first in turn
     text = "\n".join(scene_bench.markdown(section, None))
     assert "every film scaled by 0.1" in text and "median ratio **1.00**" in text
+    assert "In CPU seconds: median **0.50**" in text
 
 
 def test_a_scaled_scene_keeps_everything_but_its_film_size():
@@ -211,7 +214,8 @@ def test_a_scene_is_rendered_by_both_command_lines():
     row = scene_bench.measure_scene(path, 0.05, 1, lambda _: None)
     assert row["tracer"]["error"] == "" and row["Mitsuba"]["error"] == "", row
     assert (row["width"], row["height"]) == (13, 13)               # 256 x 256 scaled
-    assert row["ratio"] > 0
+    assert row["ratio"] > 0 and row["cpu_ratio"] > 0
+    assert all(x["cpu_seconds"][0] > 0 for x in (row["tracer"], row["Mitsuba"]))
 
 
 def test_the_generated_many_light_scene_cuts_the_light_into_tiles_of_the_same_power(tmp_path):

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import fnmatch
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -121,13 +122,18 @@ def _commands(path: Path, width: int, height: int, scale: float, tmp: Path) -> d
     return {"tracer": tracer, "Mitsuba": mitsuba}
 
 
-def _timed(command: list[str], env: dict) -> tuple[float, str]:
-    """Wall seconds of the command in a fresh process, and its error ('' if it exited 0)."""
+def _timed(command: list[str], env: dict) -> tuple[float, float, str]:
+    """Wall seconds and CPU seconds (user + system, all its threads) of the command in a fresh process, and
+    its error ('' if it exited 0). The CPU seconds are the steadier figure on a shared machine: other work
+    stretches a process's wall time more than the work it does."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     run = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
     seconds = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     error = "" if run.returncode == 0 else (run.stderr.strip().splitlines() or [f"exit {run.returncode}"])[-1][:200]
-    return seconds, error
+    return seconds, cpu, error
 
 
 def measure_scene(path: Path, scale: float, runs: int, progress) -> dict:
@@ -138,21 +144,25 @@ def measure_scene(path: Path, scale: float, runs: int, progress) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         commands = _commands(path, width, height, scale, Path(tmp))
         for name in RENDERERS:
-            seconds, error = _timed(commands[name], env)
-            row[name] = {"warm_up": seconds, "seconds": [], "error": error}
+            seconds, _, error = _timed(commands[name], env)
+            row[name] = {"warm_up": seconds, "seconds": [], "cpu_seconds": [], "error": error}
         for k in range(runs):
             for name in RENDERERS[k % 2:] + RENDERERS[:k % 2]:   # each renderer first in turn
                 if row[name]["error"]:
                     continue
                 progress(f"{path.name}: {name}, run {k + 1} of {runs}")
-                seconds, error = _timed(commands[name], env)
+                seconds, cpu, error = _timed(commands[name], env)
                 row[name]["seconds"].append(seconds)
+                row[name]["cpu_seconds"].append(cpu)
                 row[name]["error"] = error
     for name in RENDERERS:
         x = row[name]
-        x["median"] = statistics.median(x["seconds"]) if x["seconds"] and not x["error"] else None
+        ok = x["seconds"] and not x["error"]
+        x["median"] = statistics.median(x["seconds"]) if ok else None
+        x["cpu_median"] = statistics.median(x["cpu_seconds"]) if ok else None
     if row["tracer"]["median"] and row["Mitsuba"]["median"]:
         row["ratio"] = row["tracer"]["median"] / row["Mitsuba"]["median"]
+        row["cpu_ratio"] = row["tracer"]["cpu_median"] / row["Mitsuba"]["cpu_median"]
     return row
 
 
@@ -172,9 +182,10 @@ def scenes(progress, mitsuba_data: Path | None = None, globs: list[str] | None =
             "runs": runs, "docs": mitsuba_data is not None}
 
 
-def summary(section: dict) -> tuple[float, str, float] | None:
-    """(median ratio, worst scene, its ratio) over the scenes both renderers rendered; None if none did."""
-    ratios = {n: r["ratio"] for n, r in section["rows"].items() if "ratio" in r}
+def summary(section: dict, key: str = "ratio") -> tuple[float, str, float] | None:
+    """(median ratio, worst scene, its ratio) over the scenes both renderers rendered; None if none did.
+    `key`: "ratio" (wall seconds) or "cpu_ratio" (CPU seconds)."""
+    ratios = {n: r[key] for n, r in section["rows"].items() if key in r}
     if not ratios:
         return None
     worst = max(ratios, key=ratios.get)
@@ -202,24 +213,27 @@ def markdown(section: dict, plot: str | None) -> list[str]:
              f"kernel caches and the tracer's on-disk BVH cache), then {section['runs']} timed "
              f"run{'s' if section['runs'] > 1 else ''} of each, "
              "interleaved, the first renderer alternating; medians. Ratio: the tracer's median over Mitsuba's "
-             "(below 1: the tracer is faster).", ""]
+             "(below 1: the tracer is faster); CPU ratio: the same for the processes' CPU seconds (user and "
+             "system, all threads), steadier than wall time when other work shares the machine.", ""]
     if caps:
         lines += ["This run: " + "; ".join(caps) + ".", ""]
-    lines += ["| scene | size | spp | max_depth | tracer [s] | Mitsuba [s] | ratio |", "|---|---|---:|---:|---:|---:|---:|"]
+    lines += ["| scene | size | spp | max_depth | tracer [s] | Mitsuba [s] | ratio | CPU ratio |",
+              "|---|---|---:|---:|---:|---:|---:|---:|"]
     for name, r in rows.items():
         cells = []
         for renderer in RENDERERS:
             x = r[renderer]
             cells.append(f"failed: {x['error']}" if x["error"] else
                          f"{x['median']:.2f} ({min(x['seconds']):.2f}–{max(x['seconds']):.2f})")
-        ratio = f"{r['ratio']:.2f}" if "ratio" in r else "–"
+        ratio, cpu = (f"{r[k]:.2f}" if k in r else "–" for k in ("ratio", "cpu_ratio"))
         lines.append(f"| `{name}` | {r['width']} x {r['height']} | {r['spp']} | {r['max_depth']} | {cells[0]} | "
-                     f"{cells[1]} | {ratio} |")
-    found = summary(section)
+                     f"{cells[1]} | {ratio} | {cpu} |")
+    found, cpu = summary(section), summary(section, "cpu_ratio")
     if found:
         median, worst, worst_ratio = found
         n = sum("ratio" in r for r in rows.values())
-        lines += ["", f"Over {n} scenes: median ratio **{median:.2f}**, worst **{worst_ratio:.2f}** (`{worst}`)."]
+        lines += ["", f"Over {n} scenes: median ratio **{median:.2f}**, worst **{worst_ratio:.2f}** (`{worst}`)."
+                  + (f" In CPU seconds: median **{cpu[0]:.2f}**, worst **{cpu[2]:.2f}** (`{cpu[1]}`)." if cpu else "")]
     if plot:
         lines += ["", f"![the tracer's whole-process time over Mitsuba's, per scene]({plot})"]
     return lines + [""]
