@@ -84,7 +84,8 @@ ENVIRONMENT = '<emitter type="constant"><rgb name="radiance" value="1"/></emitte
 
 def test_slab_transmittance(tmp_path):
     sigma, scale = np.array([0.5, 1.0, 2.0]), 0.8
-    medium = ('<rgb name="sigma_t" value="0.5, 1.0, 2.0"/><rgb name="albedo" value="0"/>'
+    medium = ('<volume type="constvolume" name="sigma_t"><rgb name="value" value="0.5, 1.0, 2.0"/></volume>'
+              '<rgb name="albedo" value="0"/>'
               f'<float name="scale" value="{scale}"/>')
     image = render(tracer.load_scene(slab_scene(tmp_path, medium, ENVIRONMENT))).image
     assert_close(image, np.exp(-scale * sigma), wrong=np.exp(-sigma))
@@ -119,7 +120,8 @@ def furnace_scene(tmp_path, medium: str, phase: str):
 
 FURNACES = [
     ('type="homogeneous"><float name="sigma_t" value="1.5"/>', ""),
-    ('type="homogeneous"><rgb name="sigma_t" value="0.5, 1, 2"/>', '<phase type="hg"><float name="g" value="0.7"/></phase>'),
+    ('type="homogeneous"><volume type="constvolume" name="sigma_t"><rgb name="value" value="0.5, 1, 2"/></volume>',
+     '<phase type="hg"><float name="g" value="0.7"/></phase>'),
     ('type="heterogeneous"><volume type="gridvolume" name="sigma_t"><string name="filename" value="density.vol"/>'
      '<transform name="to_world"><translate value="-0.5, -0.5, -0.5"/><scale value="4"/></transform></volume>',
      '<phase type="hg"><float name="g" value="-0.4"/></phase>'),
@@ -176,6 +178,10 @@ def test_media_are_read_as_mitsuba_reads_them(tmp_path):
      "supported names: interior, exterior"),
     ('<medium type="homogeneous" id="m"><float name="sigma_t" value="-1"/></medium>'
      '<shape type="sphere"><ref name="interior" id="m"/></shape>', "must not be negative"),
+    ('<medium type="homogeneous" id="m"><rgb name="sigma_t" value="3, 2, 1"/></medium>'      # as Mitsuba 3.9.1
+     '<shape type="sphere"><ref name="interior" id="m"/></shape>', "an <rgb> sigma_t must lie in [0, 1]"),
+    ('<medium type="heterogeneous" id="m"><rgb name="albedo" value="1.2, 0.5, 0.5"/></medium>'
+     '<shape type="sphere"><ref name="interior" id="m"/></shape>', "an <rgb> albedo must lie in [0, 1]"),
 ])
 def test_refusals(tmp_path, body, words):
     errors = scene_errors(write_scene(tmp_path, body))
@@ -191,3 +197,13 @@ def test_the_branching_estimator_refuses_media(tmp_path):
     scene = tracer.load_scene(write_scene(tmp_path, '<integrator type="volpath"/><shape type="sphere"/>'))
     with pytest.raises(tracer.SceneError, match="does not render the volpath integrator"):
         render(scene, "report", spp=1, max_depth=3)
+
+
+def test_a_medium_takes_values_above_one_where_mitsuba_does(tmp_path):
+    body = ('<integrator type="volpath"/><medium type="homogeneous" id="m"><float name="sigma_t" value="3"/>'
+            '<volume type="constvolume" name="albedo"><rgb name="value" value="0.5, 0.5, 0.5"/></volume></medium>'
+            '<medium type="homogeneous" id="n"><volume type="constvolume" name="sigma_t">'
+            '<rgb name="value" value="3, 2, 1"/></volume></medium>'
+            '<shape type="sphere"><ref name="interior" id="m"/><ref name="exterior" id="n"/></shape>')
+    m, n = tracer.load_scene(write_scene(tmp_path, body)).media
+    assert m.sigma_t.value == (3.0, 3.0, 3.0) and n.sigma_t.value == (3.0, 2.0, 1.0)

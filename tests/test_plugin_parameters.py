@@ -92,7 +92,7 @@ VALUES = {
     "transmittance": '<rgb name="transmittance" value="0.5, 0.6, 0.7"/>',
     "polarizing": '<boolean name="polarizing" value="false"/>', "strength": '<integer name="strength" value="3"/>',
     "accel": '<boolean name="accel" value="false"/>',
-    "albedo": '<rgb name="albedo" value="0.2, 0.3, 0.4"/>', "sigma_t": '<rgb name="sigma_t" value="2, 3, 4"/>',
+    "albedo": '<rgb name="albedo" value="0.2, 0.3, 0.4"/>', "sigma_t": '<rgb name="sigma_t" value="0.2, 0.3, 0.4"/>',
     "sample_emitters": '<boolean name="sample_emitters" value="false"/>',
     "has_spectral_extinction": '<boolean name="has_spectral_extinction" value="false"/>',
     "g": '<float name="g" value="0.3"/>',

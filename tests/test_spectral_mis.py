@@ -28,7 +28,7 @@ from tracer.rendering import render
 from .test_media import ENVIRONMENT, assert_close, slab_scene
 
 SIGMA = np.array([5.0, 1.0, 5.0])
-MEDIUM = '<rgb name="sigma_t" value="10, 2, 10"/><rgb name="albedo" value="0"/><float name="scale" value="0.5"/>'
+MEDIUM = '<rgb name="sigma_t" value="1, 0.2, 1"/><rgb name="albedo" value="0"/><float name="scale" value="5"/>'
 
 
 def _slab(tmp_path, spectral_mis: bool):

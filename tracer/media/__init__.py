@@ -56,6 +56,11 @@ def _volume(ctx, props, name: str, default: float, child_props):
                                       "<spectrum>, a constvolume or gridvolume <volume>")
         return ctx.built_once(target, lambda n: volume_from_xml(ctx, child_props(n), n))
     value = props.colour(name, default, unbounded=True)
+    given = props.values.get(name)
+    if given is not None and given.tag == "rgb" and not ((value >= 0) & (value <= 1)).all():
+        raise ctx.error(given, f"an <rgb> {name} must lie in [0, 1], got ({', '.join(f'{x:g}' for x in value)}): "
+                               "Mitsuba reads a medium's <rgb> as a reflectance; give a <float>, a <spectrum>, "
+                               "a constvolume <volume> or a `scale`")
     return ConstVolume(rgb(value))
 
 
