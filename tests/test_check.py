@@ -3,6 +3,7 @@ refusals of bad input, each in one line."""
 import json
 import sys
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -256,3 +257,15 @@ def test_the_content_key_covers_files_an_included_fragment_names_through_the_inc
     before = files_digest(scene)
     mesh.write_text("v 0 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\n")
     assert files_digest(scene) != before
+
+
+def test_a_check_names_the_integrator_the_tracer_renders():
+    from validation.verdict.renderers import TracerRenderer
+    from validation.verdict.scenefile import plan
+
+    scenes = Path(__file__).resolve().parents[1] / "mitsuba_scenes"
+    path = TracerRenderer("path")
+    assert path.label_for(plan(scenes / "volpathmis.xml")) == "tracer volpathmis"
+    assert path.label_for(plan(scenes / "ptracer.xml")) == "tracer ptracer"
+    assert path.label_for(plan(scenes / "cube.xml")) == "tracer path"
+    assert TracerRenderer("report").label_for(plan(scenes / "cube.xml")).startswith("tracer report")

@@ -263,7 +263,8 @@ def run(scene_plan: ScenePlan, renderer: TracerRenderer | ExternalRenderer, sett
     start = time.perf_counter()
     seq = sequential(decide, settings.spp or default_spp(renderer), settings.max_spp, settings.alpha, settings.margin)
     c, ours = seq.comparison, rendered["ours"]
-    result = CheckResult(str(scene_plan.path), renderer.label, scene_plan.max_depth, c.verdict, seq.spp,
+    label = renderer.label_for(scene_plan) if isinstance(renderer, TracerRenderer) else renderer.label
+    result = CheckResult(str(scene_plan.path), label, scene_plan.max_depth, c.verdict, seq.spp,
                          reference_spp(renderer, seq.spp), settings.passes, time.perf_counter() - start,
                          scene_plan.width, scene_plan.height, c, _note(c, seq.spp, settings, ours),
                          settings.alpha, seq.stage, seq.stages, settings.passes * seq.spent)

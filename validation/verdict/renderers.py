@@ -76,6 +76,11 @@ class TracerRenderer:
             return f"tracer report (N={self.direct}, M={self.indirect})"
         return "tracer path"
 
+    def label_for(self, plan: ScenePlan) -> str:
+        """The label in a check of `plan`: the path estimator renders the scene's integrator (volpath,
+        ptracer, ...), and is named by it."""
+        return self.label if self.estimator == "report" else f"tracer {plan.integrator}"
+
     def options(self) -> dict:
         return (dict(direct=self.direct, indirect=self.indirect, hemisphere=self.hemisphere)
                 if self.estimator == "report" else {})

@@ -39,6 +39,13 @@ class ScenePlan:
     params: dict[str, str] = field(default_factory=dict)   # the scene's own <default>s, overridden
     overridden: tuple[str, ...] = ()                        # the names of params given by the check (-D)
 
+    @property
+    def integrator(self) -> str:
+        """The type of the integrator both renderers render (a moment or aov wrapper's nested one; path
+        where the scene declares none)."""
+        node = _integrator(_with_film_size(self.path, self.width, self.height), self.params)
+        return "path" if node is None else _substitute(node.get("type", ""), self.params)
+
     def mitsuba_xml(self) -> str:
         """The scene's XML with the film size and max_depth written into it."""
         root = _with_film_size(self.path, self.width, self.height)
