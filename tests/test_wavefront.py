@@ -92,13 +92,20 @@ def _paths(geo, scene, trace):
     return L.numpy(), rays.numpy()
 
 
-def test_paths_bounce_by_bounce_are_the_paths_in_one_kernel(monkeypatch):
-    """The Cornell box with its blocks in a BVH: the same radiance and ray counts to the bit."""
+@pytest.mark.parametrize("tail", [0, 300])
+def test_paths_bounce_by_bounce_are_the_paths_in_one_kernel(monkeypatch, tail):
+    """The Cornell box with its blocks in a BVH: the same radiance and ray counts to the bit, every bounce
+    batched (tail 0) or the last paths, from `tail` on (of 1,024), in one kernel."""
     scene = tracer.load_scene(SCENES / "cornell_box.xml", width=16, height=16)
     geo = SceneGeometry(scene, bvh_threshold=0)
     one_kernel = _paths(geo, scene, path_integrator._megakernel)
+    monkeypatch.setattr(path_integrator, "TAIL_LANES", tail)
+    bounces, bounce = [], path_integrator._bounce
+    monkeypatch.setattr(path_integrator, "_bounce", lambda geo, rng, path, *a: bounces.append(dr.width(path.o))
+                        or bounce(geo, rng, path, *a))
     wavefront = _paths(geo, scene, path_integrator._wavefront)
     assert one_kernel[1].min() >= 1 and one_kernel[1].max() > 5   # paths of several bounces
+    assert bounces[0] == 1024 and min(bounces) > tail          # batched bounces down to the tail
     for a, b in zip(one_kernel, wavefront):
         np.testing.assert_array_equal(a, b)
     used = []
@@ -208,6 +215,7 @@ def test_unbounded_paths_bounce_by_bounce_are_the_paths_in_one_kernel(tmp_path, 
     threads = dr.thread_count()
     dr.set_thread_count(1)        # the film adds samples atomically: in any order with two threads
     request.addfinalizer(lambda: dr.set_thread_count(threads))
+    monkeypatch.setattr(path_integrator, "TAIL_LANES", 0)   # every bounce batched
     bounces = render(scene, "path", spp=4, seed=2, max_depth=-1, geometry=geo)
     monkeypatch.setattr(path_integrator, "_wavefront", path_integrator._megakernel)
     one_kernel = render(scene, "path", spp=4, seed=2, max_depth=-1, geometry=geo)
@@ -231,7 +239,8 @@ def test_a_levels_children_are_each_parents_slots_in_order(count):
         [(p, s) for p, c in enumerate(count) for s in range(c)]
 
 
-def test_a_new_mesh_scene_of_the_same_structure_compiles_no_kernel_anew(tmp_path):
+@pytest.mark.parametrize("tail", [0, path_integrator.TAIL_LANES])
+def test_a_new_mesh_scene_of_the_same_structure_compiles_no_kernel_anew(tmp_path, monkeypatch, tail):
     """Two scenes that differ only in their meshes' sizes and shapes (BVHs of the same depth) render with the
     same kernels: no primitive count, box or root row is a literal in them (a new scene's first render
     compiled 0.4-0.7 s of kernels before). Compared by kernel hash."""
@@ -246,8 +255,9 @@ def test_a_new_mesh_scene_of_the_same_structure_compiles_no_kernel_anew(tmp_path
     geos = [SceneGeometry(s) for s in scenes]
     assert geos[0].meshes.count != geos[1].meshes.count
     assert geos[0].meshes.bvh.stack_size == geos[1].meshes.bvh.stack_size
+    monkeypatch.setattr(path_integrator, "TAIL_LANES", tail)   # 0: every bounce batched; else all in one kernel
     runs = [lambda s=s, g=g: render(s, "path", spp=2, max_depth=4, geometry=g) for s, g in zip(scenes, geos)]
     for run in runs:
         run()
     first, second = kernel_hashes(runs[0]), kernel_hashes(runs[1])
-    assert len(first) > 5 and first == second
+    assert len(first) > (5 if tail == 0 else 1) and first == second

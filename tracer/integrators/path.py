@@ -21,6 +21,7 @@ from ..jit import INF, NO_PRIM, PCG32, Array2f, Array3f, Bool, Float, UInt32
 from .direct import power_heuristic, sample_direct
 
 Q_MAX = 0.9995  # largest Russian-roulette survival probability
+TAIL_LANES = 1 << 14   # paths bounce by bounce go on in one kernel from this few on
 
 
 class Strategies:
@@ -112,12 +113,18 @@ def _wavefront(geo: SceneGeometry, rng: PCG32, path, bounce, *args) -> tuple[Arr
                 return L, rays
             if dr.width(going) < dr.width(lane):
                 path, rng, lane = (dr.gather(type(x), x, going) for x in (path, rng, lane))
+            if dr.width(going) <= TAIL_LANES:
+                break
             bounce(geo, rng, path, *args)
             ended = ~path.active
             dr.scatter(L, path.L, lane, ended)
             dr.scatter(rays, path.rays, lane, ended)
             dr.eval(path, rng, L, rays)
             compile_clock.lap()    # a bounce's thousands of walk kernels leave Dr.Jit's history
+    tail_L, tail_rays = _megakernel(geo, rng, path, bounce, *args)
+    dr.scatter(L, tail_L, lane)
+    dr.scatter(rays, tail_rays, lane)
+    return L, rays
 
 
 def _bounce(geo, rng, path: PathState, max_depth, rr_depth, strategies: Strategies = PATH,
