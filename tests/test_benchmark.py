@@ -149,7 +149,7 @@ def test_a_renders_own_rays_are_replayed_through_both_renderers(tmp_path):
     geo = SceneGeometry(scene)
     traced = []
     once = lambda: traced.append(render(scene, "path", spp=4, max_depth=4, geometry=geo).rays)   # noqa: E731
-    with recorded_queries() as queries:
+    with recorded_queries() as queries, mesh_profile.every_bounce_batched():
         once()
     assert [(q, len(o)) for q, o, _, _ in queries[:2]] == [("closest hit", 32 * 32 * 4), ("shadow", len(queries[1][1]))]
     recorded = sum(len(o) for _, o, _, _ in queries)   # shadow rays are traced only towards a light's front

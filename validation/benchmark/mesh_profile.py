@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import statistics
 import time
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -91,15 +92,29 @@ def profile_tracer(geometry) -> dict:
     return out
 
 
+@contextmanager
+def every_bounce_batched():
+    """Within: the path tracer walks every bounce's rays batched (tracer.integrators.path.TAIL_LANES 0; a
+    render's last few paths otherwise go on in one kernel, their walks inside it), so that every walk is
+    timed or recorded."""
+    import tracer.integrators.path as path
+
+    tail, path.TAIL_LANES = path.TAIL_LANES, 0
+    try:
+        yield
+    finally:
+        path.TAIL_LANES = tail
+
+
 def profile_render(render_once) -> dict:
-    """Where one render's time goes: render_once() -> its seconds, run with the batched BVH walks timed
-    (tracer.shapes.bvh.timed_walks: each walk waits for its inputs and its end, so this render takes a
-    little longer than an untimed one). Returns its seconds and those of the closest-hit and shadow walks,
+    """Where one render's time goes: render_once() -> its seconds, run with every bounce's BVH walks batched
+    and timed (every_bounce_batched, tracer.shapes.bvh.timed_walks: each walk waits for its inputs and its
+    end, so this render takes a little longer than an untimed one). Returns its seconds and those of the closest-hit and shadow walks,
     and the fraction of each query's rays that were walked (the others enter no child box of the BVH's
     root row)."""
     from tracer.shapes.bvh import timed_walks
 
-    with timed_walks() as walks:
+    with timed_walks() as walks, every_bounce_batched():
         seconds = render_once()
     closest, shadow = walks.get("closest hit", 0.0), walks.get("shadow", 0.0)
     out = {"timed_render_seconds": seconds, "closest_walk_seconds": closest, "shadow_walk_seconds": shadow,
@@ -124,7 +139,7 @@ def profile_render_rays(geometry, render_once, mitsuba_scene) -> dict:
     from tracer.geometry import recorded_queries
     from tracer.jit import NO_PRIM, Array3f, Float, UInt32
 
-    with recorded_queries() as queries:
+    with recorded_queries() as queries, every_bounce_batched():
         render_once()
     eps = REPLAY_OFFSET * geometry.scene.extent()
     batches = [(q, o + eps * d, d, np.maximum(t - 2 * eps, 0)) for q, o, d, t in queries if len(o)]
