@@ -100,7 +100,9 @@ def _megakernel(geo: SceneGeometry, rng: PCG32, path, bounce, *args) -> tuple[Ar
 def _wavefront(geo: SceneGeometry, rng: PCG32, path, bounce, *args) -> tuple[Array3f, UInt32]:
     """The paths one bounce per step, the state of those still going evaluated between steps, and their
     ray queries batched (SceneGeometry.batched): a packet of lanes then never waits in a BVH walk for
-    its slowest ray (wherever a path ends its L and rays go out)."""
+    its slowest ray (wherever a path ends its L and rays go out). Once at most TAIL_LANES paths are left they
+    go on in one kernel (_megakernel): a batched bounce costs its launches and the tracing of its kernels
+    however few its paths, and with max_depth -1 the last few paths take tens of bounces."""
     n = dr.width(path.o)
     for name in type(path).DRJIT_STRUCT:       # one value per lane, to gather from
         value = getattr(path, name)
