@@ -6,7 +6,6 @@ render in a child whose kernel cache is empty (HOME pointed at a fresh folder).
 """
 from __future__ import annotations
 
-import compileall
 import json
 import os
 import platform
@@ -24,7 +23,7 @@ from tracer.estimators import REPORT_DEPTH_OFFSET
 
 from .instances import instances as instance_section, markdown as instance_markdown
 from .mesh_scene import write_mesh_scene
-from .scene_bench import light_replaced, markdown as scene_markdown, scenes as scene_section
+from .scene_bench import compile_tracer, light_replaced, markdown as scene_markdown, scenes as scene_section
 
 ROOT = Path(__file__).resolve().parents[2]
 ROOM = ROOT / "mitsuba_scenes" / "hexagon_room.xml"
@@ -226,8 +225,8 @@ REPORT_COMMAND = ["--estimator", "report", "--report-depth", "2", "-N", "16", "-
 def report_whole_process(progress) -> dict:
     """Wall seconds of `tracer render` in the report's configuration (REPORT_COMMAND on the room), from
     process start to the written EXR and PNG: a run that warms Dr.Jit's kernel cache, then WHOLE_RUNS timed
-    ones, the tracer's modules compiled to bytecode first (_compile_tracer)."""
-    _compile_tracer()
+    ones, the tracer's modules compiled to bytecode first (scene_bench.compile_tracer)."""
+    compile_tracer()
     seconds = []
     with tempfile.TemporaryDirectory() as tmp:
         command = [sys.executable, "-m", "tracer.cli", "render", str(ROOM), *REPORT_COMMAND, "-o", f"{tmp}/r.exr"]
@@ -408,17 +407,11 @@ def _pool(first: dict, second: dict) -> None:
     first["setup_seconds"] = statistics.median(first["setup_runs"])
 
 
-def _compile_tracer() -> None:
-    """The tracer's modules compiled to bytecode, as an installed package's are, before whole-process runs:
-    where the environment sets PYTHONDONTWRITEBYTECODE, every run would else compile them anew (about 0.1 s)."""
-    compileall.compile_dir(str(ROOT / "tracer"), quiet=1)
-
-
 def whole_process(scene: Path, progress) -> dict:
     """Wall seconds of `tracer render` (without and with a warm on-disk BVH cache) and of the `mitsuba`
     command on `scene` (-D spp, max_depth, width, height), WHOLE_RUNS each, alternated in turn, the
-    tracer's modules compiled to bytecode first (_compile_tracer)."""
-    _compile_tracer()
+    tracer's modules compiled to bytecode first (scene_bench.compile_tracer)."""
+    compile_tracer()
     defines = [f"spp={MESH_SPP}", f"max_depth={MESH_DEPTH}", f"width={MESH_SIZE}", f"height={MESH_SIZE}"]
     defines = [x for d in defines for x in ("-D", d)]
     times: dict[str, list[float]] = {"tracer": [], "tracer, BVH from disk cache": [], "Mitsuba": []}

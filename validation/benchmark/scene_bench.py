@@ -5,8 +5,9 @@ rectangles (generated: a scene of many emitters), and, given a copy of mitsuba-r
 every scene of its docs/scenes, tests/scenes and scenes folders (validation.coverage.FOLDERS) that the
 tracer loads. Each at its own resolution, spp and depth: `tracer render SCENE` against `mitsuba -m
 llvm_ad_rgb SCENE`, each run a fresh process timed from start to exit (loading, BVH, compilation,
-rendering, writing the EXR). Per scene a warm-up run of each (filling Dr.Jit's kernel caches and the
-tracer's on-disk BVH cache, as a user's earlier render of the scene would), then RUNS timed runs of each,
+rendering, writing the EXR), the tracer's modules compiled to bytecode beforehand (as an installed package's
+are). Per scene a warm-up run of each (filling Dr.Jit's kernel caches and the tracer's on-disk BVH cache, as a
+user's earlier render of the scene would), then RUNS timed runs of each,
 interleaved (the first renderer alternating), and the ratio of the medians.
 
 A shared machine seldom has time for all of them, so the set can be capped: `globs` (fnmatch patterns on
@@ -16,6 +17,7 @@ labels such a run, whose timings weigh compilation more than a full-size run doe
 """
 from __future__ import annotations
 
+import compileall
 import fnmatch
 import os
 import resource
@@ -122,6 +124,13 @@ def _commands(path: Path, width: int, height: int, scale: float, tmp: Path) -> d
     return {"tracer": tracer, "Mitsuba": mitsuba}
 
 
+def compile_tracer() -> None:
+    """The tracer's modules compiled to bytecode, as an installed package's are, before whole-process runs:
+    where the environment sets PYTHONDONTWRITEBYTECODE, every run would else compile them anew (0.1-0.2 s of
+    CPU a process)."""
+    compileall.compile_dir(str(ROOT / "tracer"), quiet=1)
+
+
 def _timed(command: list[str], env: dict) -> tuple[float, float, str]:
     """Wall seconds and CPU seconds (user + system, all its threads) of the command in a fresh process, and
     its error ('' if it exited 0). The CPU seconds are the steadier figure on a shared machine: other work
@@ -170,6 +179,7 @@ def scenes(progress, mitsuba_data: Path | None = None, globs: list[str] | None =
            max_seconds: float | None = None, runs: int = RUNS) -> dict:
     """The section's results: per scene its settings, each renderer's runs and median, and their ratio."""
     chosen = candidates(mitsuba_data, globs)
+    compile_tracer()
     start = time.perf_counter()
     rows, skipped = {}, []
     for i, (name, path) in enumerate(chosen):
@@ -209,7 +219,8 @@ def markdown(section: dict, plot: str | None) -> list[str]:
     lines = ["## Every scene: whole process, the tracer against Mitsuba", "",
              f"{sources[0].upper() + sources[1:]}, each at its own resolution, spp and max_depth: `tracer render SCENE` "
              "against `mitsuba -m llvm_ad_rgb SCENE`, each run a fresh process timed from start to exit (loading, "
-             "BVH, kernel compilation, rendering, writing the EXR). Per scene a warm-up run of each (filling Dr.Jit's "
+             "BVH, kernel compilation, rendering, writing the EXR), the tracer's modules compiled to bytecode beforehand "
+             "(as an installed package's are). Per scene a warm-up run of each (filling Dr.Jit's "
              f"kernel caches and the tracer's on-disk BVH cache), then {section['runs']} timed "
              f"run{'s' if section['runs'] > 1 else ''} of each, "
              "interleaved, the first renderer alternating; medians. Ratio: the tracer's median over Mitsuba's "
