@@ -9,7 +9,7 @@ import tracer.geometry as geometry
 import drjit as dr
 
 from tracer.shapes.bvh import LEAF_BIT, WIDTH, BVHKernel, layout, wide_children
-from tracer.shapes.bvh_build import BINS, LEAF_SIZE, TRAVERSAL_COST, aligned, build, depth_first
+from tracer.shapes.bvh_build import BINS, LEAF_SIZE, TRAVERSAL_COST, Tree, aligned, build, depth_first, sah_cost
 from tracer.jit import NO_PRIM, Array3f, ArrayXu, Bool, Float, UInt32
 
 from .conftest import SCENES, kernel_hashes
@@ -229,6 +229,31 @@ def test_build_splits_each_node_where_the_surface_area_heuristic_is_least(ties):
         whole = _area(tris[mine].min(axis=(0, 1)), tris[mine].max(axis=(0, 1)))
         assert whole == 0 or TRAVERSAL_COST + best / whole >= len(mine) * (1 - 1e-5)   # no area: no ray to split
     assert len(set(axes)) == 3    # the scene is wider along x than y and z, yet nodes split along each
+
+
+def test_sah_cost_weighs_each_node_by_its_area():
+    """A root box [0, 1]^3 (area 6) split across z into two leaves of area 4 each, holding 3 and 4
+    triangles: TRAVERSAL_COST + (3 * 4 + 4 * 4) / 6 triangle tests; a lone leaf costs its triangles. The
+    build's tree of two far clusters costs under a tenth of one leaf of all, and under half the same tree with
+    its triangles dealt out at random among its leaves."""
+    lo = np.array([[0, 0, 0], [0, 0, 0], [0, 0, 0.5]])
+    hi = np.array([[1, 1, 1], [1, 1, 0.5], [1, 1, 1]])
+    tree = Tree(lo, hi, np.array([1, -1, -1]), np.array([2, -1, -1]), np.array([0, 0, 3]), np.array([0, 3, 4]),
+                np.arange(7), [(0, 1), (1, 3)])
+    assert sah_cost(tree) == pytest.approx(TRAVERSAL_COST + 28 / 6, rel=1e-12)
+    one = Tree(lo[:1], hi[:1], np.array([-1]), np.array([-1]), np.array([0]), np.array([7]), np.arange(7), [(0, 1)])
+    assert sah_cost(one) == 7
+    rng = np.random.default_rng(3)
+    tris = rng.uniform(0, 0.01, (400, 3, 3)) + np.where(rng.random(400) < 0.5, 0, 1)[:, None, None]
+    built = build(tris)
+    assert sah_cost(built) < 0.1 * len(tris)
+    dealt = rng.permutation(built.order)     # the same nodes, the triangles dealt among the leaves at random
+    lo, hi = built.lo.copy(), built.hi.copy()
+    for node, mine in _node_slots(Tree(lo, hi, built.left, built.right, built.first, built.count, dealt,
+                                       built.levels)).items():
+        lo[node], hi[node] = tris[mine].min(axis=(0, 1)), tris[mine].max(axis=(0, 1))
+    dealt = Tree(lo, hi, built.left, built.right, built.first, built.count, dealt, built.levels)
+    assert sah_cost(dealt) > 2 * sah_cost(built)
 
 
 def test_build_of_equal_triangles_stays_balanced():

@@ -385,6 +385,17 @@ def host_array(kind: type, a: np.ndarray, dtype=None):
     return kind(a.ravel())
 
 
+def sah_cost(tree: Tree) -> float:
+    """The tree's expected cost of a walk, in triangle tests, of a ray through its root box, by the surface
+    area heuristic (MacDonald and Booth 1990; pbrt-v4's BVH cost): TRAVERSAL_COST per inner node and a
+    leaf's triangles, each weighted by the chance that such a ray enters the node's box (its surface area
+    over the root's). The measure of a tree's quality that _sah minimizes node by node; the root's box has
+    an area."""
+    extent = tree.hi.astype(np.float64) - tree.lo
+    area = 2 * (extent[:, 0] * extent[:, 1] + extent[:, 1] * extent[:, 2] + extent[:, 2] * extent[:, 0])
+    return float(np.where(tree.inner, TRAVERSAL_COST, tree.count) @ area / area[0])
+
+
 def depth_first(tree: Tree) -> np.ndarray:
     """Each node's position in a depth-first (left child first) order of the tree."""
     size = tree.subtree
