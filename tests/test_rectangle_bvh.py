@@ -90,3 +90,17 @@ def test_describe_names_the_rectangle_bvh(tmp_path, monkeypatch):
     scene = many_rectangles(tmp_path)
     monkeypatch.setattr(rectangle_module, "BVH_THRESHOLD", 20)
     assert "rectangles (ray-plane, eq. 2-4, in a BVH)" in SceneGeometry(scene).describe()[0]
+
+
+def test_a_rooms_walls_stay_out_of_the_tiles_bvh_and_shadow_rays_skip_the_tiles(tmp_path):
+    """The Cornell box with its light cut into 12 x 12 tiles: the five walls, whose boxes would overlap
+    every node, are tested one by one and the tiles go into the BVH; shadow rays end in the tiles' plane, so
+    none can cross a tile and their kernel walks no BVH."""
+    from validation.benchmark.scene_bench import tiled_light_cornell_box
+
+    scene = tracer.load_scene(tiled_light_cornell_box(tmp_path, 12))
+    geometry = SceneGeometry(scene)
+    walls = [k for k, r in enumerate(scene.rectangles) if r.radiance is None]
+    assert len(walls) == 5 and geometry.rectangles.unrolled == walls
+    assert len(geometry.rectangles.bvh_prims) == 144 and geometry.bvhs and not geometry.shadow_bvhs
+    assert not set(range(geometry.rectangles.count)) & geometry.occluders

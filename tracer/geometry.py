@@ -23,7 +23,7 @@ from .media import MediaKernel
 from .sampling import square_to_uniform_sphere
 from .scene import Scene, SceneError
 from .shapes import BVH_THRESHOLD, SETS, MeshSet, Rectangle, RectangleSet, ShapeSet, SphereSet
-from .shapes.rectangle import EmitterTable
+from .shapes.rectangle import EmitterTable, corners_of
 from .shapes.bvh import BATCHED_WALKS
 from .shapes.instance import InstanceSet
 from .shapes.planar import inset_point
@@ -56,6 +56,19 @@ class Surface:
     dpdu: Array3f | None = None   # the direction of dp/du, in scenes whose materials are oriented only
     dpdv: Array3f | None = None   # dp/dv (true length, as dp/du then), in scenes with bump maps only
     bary: tuple[Float, Float] | None = None   # a triangle's b1, b2, in scenes with mesh attributes only
+
+
+def _crossed(sets: list, p0: np.ndarray, n: np.ndarray, light_below: bool, light_above: bool, eps: float) -> bool:
+    """Whether a segment from a point of `sets` to a light may cross the plane (p0, n) strictly: some light
+    lies below it (light_below) and some point of the sets above, or the reverse (sides beyond eps)."""
+    if not (light_below or light_above):
+        return False
+    lo, hi = zip(*(s.side_bounds(p0, n) for s in sets))
+    above, below = light_below and max(hi) > eps, light_above and min(lo) < -eps
+    for side in (s.sides(p0, n) for s in sets) if above or below else ():
+        if (above and np.any(side > eps)) or (below and np.any(side < -eps)):
+            return True
+    return False
 
 
 def uses_bvh(scene: Scene) -> bool:
@@ -197,30 +210,42 @@ class SceneGeometry:
         return self._set_of(shape)[1]
 
     def _possible_occluders(self) -> set[int]:
-        """Primitives that can block a shadow ray. A shadow ray joins two points of the scene, so a planar
-        primitive with the whole scene on one side of its plane (a wall of a convex room) never lies
-        strictly between its ends: such primitives are left out of the shadow-ray kernel. Shadow rays to an
-        environment leave the scene, so with one (or a directional light) every primitive may block."""
+        """Primitives that can block a shadow ray. A shadow ray joins a point of the scene to a point on a
+        light, so a planar primitive lies strictly between its ends only if the scene reaches strictly to one
+        side of its plane and a light strictly to the other: others (a wall of a convex room, a light's tile
+        beside other tiles in its plane) are left out of the shadow-ray kernel. Shadow rays to an environment
+        leave the scene, so with one (or a directional light) every primitive may block."""
         if self.has_infinite_lights:
             return set(range(self.n_prims))
-        lights = np.array([light.position for light in self.points]).reshape(-1, 3)   # shadow rays end there too
+        ends, radii = self._light_hull()
         eps = 1e-6 * self.scene.extent()
         keep = set(range(self.curved_base, self.n_prims))
         sets = sorted((s for s in [*self.shape_sets, *self.instanced] if s.count),
                       key=lambda s: s.count)   # the cheapest sides first
         for shapes in self.shape_sets:
             for i, p0, n in shapes.culling_planes():
-                light = (lights - p0) @ n
-                lo, hi = zip(*(s.side_bounds(p0, n) for s in sets))
-                if min([*lo, *light]) >= -eps or max([*hi, *light]) <= eps:   # one side, from the bounds
-                    continue
-                below = above = False           # not every side >= -eps, not every side <= eps (so far)
-                for side in itertools.chain([light], (s.sides(p0, n) for s in sets)):
-                    below, above = below or not np.all(side >= -eps), above or not np.all(side <= eps)
-                    if below and above:
-                        keep.add(i)
-                        break
+                end = (ends - p0) @ n
+                if _crossed(sets, p0, n, bool(np.any(end - radii < -eps)), bool(np.any(end + radii > eps)), eps):
+                    keep.add(i)
         return keep
+
+    @property
+    def shadow_bvhs(self) -> list:
+        """The BVHs that shadow rays walk: those holding a primitive that may block one (occluders)."""
+        return [s.bvh for s in self.shape_sets if s.walked_by_shadow_rays(self.occluders)]
+
+    def _light_hull(self) -> tuple[np.ndarray, np.ndarray]:
+        """(centres, radii): balls whose hull holds every point where a shadow ray may end: point lights, the
+        corners of emitting rectangles (a disk's square), the vertices of emitting meshes, emitting spheres."""
+        balls = [(light.position, 0.0) for light in self.points]
+        for e in self.emitters:
+            if isinstance(e, Rectangle):
+                balls += [(p, 0.0) for p in corners_of([e])[0]]
+            elif isinstance(e, SphereSet.kind):
+                balls.append((e.center, e.radius))
+            else:
+                balls += [(p, 0.0) for p in np.reshape(e.vertices, (-1, 3))]
+        return np.reshape([p for p, _ in balls], (-1, 3)), np.array([r for _, r in balls], float)
 
     # ---- ray queries ------------------------------------------------------------------------------
     @property
@@ -299,7 +324,7 @@ class SceneGeometry:
         blocked = Bool(False)
         for i, t, _, _ in self._candidates(o, d, 0.0, skip, target, self.occluders):
             blocked |= t < dist
-        for bvh in self.bvhs:
+        for bvh in self.shadow_bvhs:
             blocked |= bvh.occluded(o, d, dist, skip, target, active & ~blocked, self.batch)
         for group in self.instanced:
             blocked |= group.occluded(o, d, dist, skip, active & ~blocked, self.batch)

@@ -61,6 +61,11 @@ class ShapeSet:
                 return lo, lo + n
         return None
 
+    def walked_by_shadow_rays(self, occluders: set[int]) -> bool:
+        """Whether shadow rays walk the set's BVH, given the primitives that may block one (all BVHs but
+        those whose primitives were all culled, geometry._possible_occluders)."""
+        return self.bvh is not None
+
     def normals(self) -> np.ndarray:
         """(count, 3) geometric normals of flat primitives (zero where the kernel computes them)."""
         return np.zeros((self.count, 3))

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import drjit as dr
@@ -18,6 +19,7 @@ if TYPE_CHECKING:
     from ..materials import BSDF
 
 BVH_THRESHOLD = 128  # rectangles and disks above which a BVH beats the unrolled tests (see RectangleSet.uses_bvh)
+LARGE, MAX_LARGE = 8, 16   # at most MAX_LARGE rectangles as large as 1/LARGE of all stay out of a BVH (`large`)
 # the XML plugins this module reads, with every parameter Mitsuba 3 reads for them
 PLUGINS = {"rectangle": ("to_world", "flip_normals", "silhouette_sampling_weight"),
            "disk": ("to_world", "flip_normals", "silhouette_sampling_weight")}
@@ -93,13 +95,12 @@ class RectangleBVH(BVHKernel):
     of its corners lo, hi, hi); a leaf slot's row holds the centre, the primitive id, the dual edges, the
     normal and whether it is a disk: what ray_rectangle reads."""
 
-    def __init__(self, shapes: list[Rectangle], prim_base: int):
-        corners = np.array([[r.center + a * e1 + b * e2 for a in (-1, 1) for b in (-1, 1)]
-                            for r in shapes for e1, e2 in [r.edges]], float).reshape(-1, 4, 3)
+    def __init__(self, shapes: list[Rectangle], prims: np.ndarray):
+        corners = corners_of(shapes)
         lo, hi = corners.min(1), corners.max(1)
         tables = layout(np.stack([lo, hi, hi], 1))
         self._set_nodes(tables)
-        rows = leaf_rows(tables.order, prim_base, 16)   # (centre, prim, du, 0, dv, 0, n, disk)
+        rows = leaf_rows(np.asarray(prims)[tables.order], 0, 16)   # (centre, prim, du, 0, dv, 0, n, disk)
         for k, r in enumerate(tables.order):
             du, dv = shapes[r].dual_edges
             rows[k, :3], rows[k, 4:7], rows[k, 8:11], rows[k, 12:15] = shapes[r].center, du, dv, shapes[r].normal
@@ -119,14 +120,36 @@ class RectangleBVH(BVHKernel):
         return dr.select(out, INF, t), prim, u, v
 
 
+def corners_of(shapes: list[Rectangle]) -> np.ndarray:
+    """(count, 4, 3) the corners of rectangles (of disks' bounding squares)."""
+    return np.reshape([r.center + a * e1 + b * e2 for r in shapes for e1, e2 in [r.edges]
+                       for a in (-1, 1) for b in (-1, 1)], (-1, 4, 3))
+
+
+def large(corners: np.ndarray) -> list[int]:
+    """Of rectangles and disks with `corners` (corners_of), those that stay out of their BVH: the largest
+    MAX_LARGE of those whose box spans 1/LARGE of all their bounds along some axis (a room's walls). Such
+    boxes overlap the tree's nodes, so that most rays would visit them all; tested one by one, each costs one
+    test (see RectangleSet.uses_bvh)."""
+    size = np.ptp(corners, axis=1)
+    share = (size / np.maximum(np.ptp(corners.reshape(-1, 3), axis=0), 1e-30)).max(1)
+    order = np.argsort(-share, kind="stable")[:MAX_LARGE]
+    return sorted(int(k) for k in order if share[k] >= 1 / LARGE)
+
+
 class RectangleSet(ShapeSet):
     kind = Rectangle
     planar = True
 
     def __init__(self, shapes: list[Rectangle], base: int):
         super().__init__(shapes, base)
+        self.unrolled = list(range(self.count))     # the primitives (from base) tested one by one
+        self.bvh_prims: list[int] = []              # the primitives in the BVH
         if self.uses_bvh(self.count):
-            self.bvh = RectangleBVH(self.shapes, base)
+            self.unrolled = large(self._corners.reshape(-1, 4, 3))
+            inside = np.setdiff1d(np.arange(self.count), self.unrolled)
+            self.bvh = RectangleBVH([self.shapes[k] for k in inside], self.base + inside)
+            self.bvh_prims = [int(i) for i in self.base + inside]
 
     @staticmethod
     def uses_bvh(rectangles: int) -> bool:
@@ -138,6 +161,9 @@ class RectangleSet(ShapeSet):
         unrolled time grows about linearly: even at about 200, and 128 once compilation counts."""
         return rectangles > BVH_THRESHOLD
 
+    def walked_by_shadow_rays(self, occluders: set[int]) -> bool:
+        return self.bvh is not None and any(p in occluders for p in self.bvh_prims)
+
     def normals(self) -> np.ndarray:
         return np.array([r.normal for r in self.shapes]).reshape(-1, 3)
 
@@ -145,21 +171,22 @@ class RectangleSet(ShapeSet):
         return np.array([[r.center, *r.edges] for r in self.shapes]).reshape(-1, 3, 3)
 
     def culling_planes(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
-        if self.bvh is not None:   # BVH primitives are all tested; only the unrolled ones are worth culling
-            return []
         return [(self.base + i, r.center, r.normal) for i, r in enumerate(self.shapes)]
 
     def sides(self, p0: np.ndarray, n: np.ndarray) -> np.ndarray:
-        corners = [r.center + a * e1 + b * e2 for r in self.shapes for e1, e2 in [r.edges]
-                   for a in (-1, 1) for b in (-1, 1)]
-        return (np.reshape(corners, (-1, 3)) - p0) @ n
+        return (self._corners - p0) @ n
+
+    @cached_property
+    def _corners(self) -> np.ndarray:
+        """(4 count, 3) the corners of the rectangles (of the disks' bounding squares)."""
+        return corners_of(self.shapes).reshape(-1, 3)
 
     def describe(self) -> str:
         return f"{self.count} rectangles (ray-plane, eq. 2-4{', in a BVH' if self.bvh is not None else ''})"
 
     def candidates(self, o, d, t_min, skip, target, only):
-        for k, r in enumerate(self.shapes if self.bvh is None else ()):
-            i = self.base + k
+        for k in self.unrolled:
+            r, i = self.shapes[k], self.base + k
             if only is not None and i not in only:
                 continue
             du, dv = r.dual_edges
