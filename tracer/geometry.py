@@ -22,7 +22,7 @@ from .materials import MaterialTables
 from .media import MediaKernel
 from .sampling import square_to_uniform_sphere
 from .scene import Scene, SceneError
-from .shapes import BVH_THRESHOLD, SETS, MeshSet, Rectangle, RectangleSet, ShapeSet, SphereSet
+from .shapes import BVH_THRESHOLD, SETS, CylinderSet, MeshSet, Rectangle, RectangleSet, ShapeSet, SphereSet
 from .shapes.rectangle import EmitterTable, corners_of
 from .shapes.bvh import BATCHED_WALKS
 from .shapes.instance import InstanceSet
@@ -74,7 +74,8 @@ def _crossed(sets: list, p0: np.ndarray, n: np.ndarray, light_below: bool, light
 def uses_bvh(scene: Scene) -> bool:
     """Whether a SceneGeometry of the scene (its default bvh_threshold) puts primitives into a BVH."""
     return (MeshSet.uses_bvh(scene.triangle_count) or SphereSet.uses_bvh(len(scene.of_kind(SphereSet.kind)))
-            or RectangleSet.uses_bvh(len(scene.of_kind(RectangleSet.kind))) or scene.instanced_triangles[1] > 0)
+            or RectangleSet.uses_bvh(len(scene.of_kind(RectangleSet.kind)))
+            or CylinderSet.uses_bvh(len(scene.of_kind(CylinderSet.kind))) or scene.instanced_triangles[1] > 0)
 
 
 def goes_bounce_by_bounce(has_mesh_bvh: bool) -> bool:
