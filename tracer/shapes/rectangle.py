@@ -18,7 +18,7 @@ from .planar import EDGE_MARGIN
 if TYPE_CHECKING:
     from ..materials import BSDF
 
-BVH_THRESHOLD = 128  # rectangles and disks above which a BVH beats the unrolled tests (see RectangleSet.uses_bvh)
+BVH_THRESHOLD = 40  # rectangles and disks above which a BVH beats the unrolled tests (see RectangleSet.uses_bvh)
 LARGE, MAX_LARGE = 8, 16   # at most MAX_LARGE rectangles as large as 1/LARGE of all stay out of a BVH (`large`)
 # the XML plugins this module reads, with every parameter Mitsuba 3 reads for them
 PLUGINS = {"rectangle": ("to_world", "flip_normals", "silhouette_sampling_weight"),
@@ -154,11 +154,13 @@ class RectangleSet(ShapeSet):
     @staticmethod
     def uses_bvh(rectangles: int) -> bool:
         """Whether a RectangleSet of this many rectangles and disks puts them into a BVH (above BVH_THRESHOLD).
-        Measured on the Cornell box with its light cut into n x n rectangles (bench.tiled_light_cornell_box),
-        path, 128 x 128, 32 spp, CPU seconds of a render (median of 2, machine heavily loaded), unrolled
-        against BVH: 0.43 against 1.21 s at 14 rectangles, 0.59 against 1.30 at 30, 0.68 against 1.19 at 69;
-        at 64 spp 2.82 against 2.30 s at 261, where the unrolled kernel also compiles for 1.6 s. The
-        unrolled time grows about linearly: even at about 200, and 128 once compilation counts."""
+        Measured on tests/test_rectangle_bvh.py's room of n random rectangles and disks (a quarter emitting),
+        128 x 128, path, 32 spp, max_depth 6, CPU seconds of a render (machine loaded, load ~12), unrolled
+        against BVH (the largest 16 staying out of it, `large`): with warm kernel caches 0.12 against 0.13 at
+        24, 0.14-0.16 against 0.21 at 32, 0.16-0.20 against 0.18-0.21 at 48; a first render, compiling,
+        0.99 against 1.00-1.18 at 24, 1.83-1.95 against 0.94-1.12 at 48, 2.64-3.48 against 1.08-1.31 at 96:
+        the unrolled kernel compiles anew for every count and grows with it, the BVH's serves every count.
+        Unrolled wins at 32 once compiled, the two tie at 48, where a first render favours the BVH by 2x."""
         return rectangles > BVH_THRESHOLD
 
     def walked_by_shadow_rays(self, occluders: set[int]) -> bool:
