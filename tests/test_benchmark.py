@@ -279,3 +279,12 @@ def test_the_rooms_phases_add_up_to_its_render():
     t = phases(profile)
     assert abs(sum(x for name, x in t.items() if name != "full") - 0.9) < 1e-12
     assert t["shadow-ray queries"] == 0.9 - 0.8 and t["closest-hit queries"] == 60 / 400
+
+
+def test_cold_start_writes_the_light_scenes_compile_times_where_measured():
+    """The cold-start section's many-light scenes: each one's first compile and render, as measured; no line
+    from a run that did not measure them."""
+    scenes = [{"lights": 144, "first_compile": 3.32, "median": 3.21}, {"lights": 256, "first_compile": 0.04, "median": 3.28}]
+    text = " ".join(benchmark._light_scene_lines(scenes))
+    assert "144 then 256 rectangles" in text and "compiles for 3.32 s" in text and "for 0.04 s (its render 3.28 s)" in text
+    assert benchmark._light_scene_lines(None) == []

@@ -23,7 +23,8 @@ from tracer.estimators import REPORT_DEPTH_OFFSET
 
 from .instances import instances as instance_section, markdown as instance_markdown
 from .mesh_scene import write_mesh_scene
-from .scene_bench import compile_tracer, light_replaced, markdown as scene_markdown, scenes as scene_section
+from .scene_bench import (compile_tracer, light_replaced, markdown as scene_markdown, scenes as scene_section,
+                          tiled_light_cornell_box)
 
 ROOT = Path(__file__).resolve().parents[2]
 ROOM = ROOT / "mitsuba_scenes" / "hexagon_room.xml"
@@ -35,6 +36,7 @@ MESH_FOLDER = ROOT / ".cache" / "bench"      # the generated mesh scenes (valida
 MESH_TRIANGLES = (250_000, 1_000_000)
 MESH_SPP, MESH_DEPTH, MESH_SIZE = 64, 5, 256
 NEW_SCENE_TRIANGLES = (11000, 13000)   # cold start: two UV-sphere scenes whose BVHs have the same depth
+LIGHT_TILES = (12, 16)                 # cold start: the Cornell box with its light cut into n x n rectangles
 WHOLE_RUNS = 3                                  # whole-process runs of each renderer, alternated
 # The memory section: mitsuba-renderer/mitsuba-data's docs scenes (one per kind of content the tracer renders:
 # an environment map around serialized meshes in a BVH, area lights, spheres, PLY meshes, textures), at their
@@ -290,9 +292,10 @@ def _split_light_room(folder: Path) -> Path:
 
 
 def cold_start(progress) -> dict:
-    """The room's first render with an empty kernel cache; and a new mesh scene's first render with the
-    cache holding only the kernels of another (a UV sphere of another size in the Cornell box, a BVH of the
-    same depth: kernels free of the scene's sizes and boxes come from the cache)."""
+    """The room's first render with an empty kernel cache; a new mesh scene's first render with the cache
+    holding only the kernels of another (a UV sphere of another size in the Cornell box, a BVH of the same
+    depth: kernels free of the scene's sizes and boxes come from the cache); and the same for the Cornell
+    box with its light cut into n x n tiles (LIGHT_TILES: a BVH of rectangles, lights from a table)."""
     progress("cold start")
     job = _tracer("path", size=600, spp=1, max_depth=5)
     job["repeats"] = 1
@@ -303,6 +306,12 @@ def cold_start(progress) -> dict:
             job = _tracer("path", size=256, scene=_sphere_scene(Path(tmp), n), spp=16, max_depth=4)
             job["repeats"] = 1
             out.setdefault("mesh_scenes", []).append(measure(job, home=home) | {"triangles": n})
+    with tempfile.TemporaryDirectory() as home, tempfile.TemporaryDirectory() as tmp:
+        for n in LIGHT_TILES:
+            progress(f"cold start, the Cornell box with {n * n} lights")
+            job = _tracer("path", size=256, scene=tiled_light_cornell_box(Path(tmp), n), spp=16, max_depth=6)
+            job["repeats"] = 1
+            out.setdefault("light_scenes", []).append(measure(job, home=home) | {"lights": n * n})
     return out
 
 
@@ -335,6 +344,18 @@ def scaling(progress) -> dict:
                 curves["triangles"].append((kind, triangles, result["median"]))
                 curves["setup"].append((kind, triangles, result["setup_seconds"]))
     return curves
+
+
+def _light_scene_lines(scenes: list[dict] | None) -> list[str]:
+    """The cold-start section's tiled-light scenes, where the run measured them."""
+    if not scenes:
+        return []
+    first, second = scenes
+    return [f"A scene of many lights, the kernel cache empty, then holding only the first's kernels (the Cornell "
+            f"box with its light cut into {first['lights']} then {second['lights']} rectangles, path, 256 x 256, "
+            f"16 spp, max_depth 6, each in a process of its own): the first's first render compiles for "
+            f"{first['first_compile']:.2f} s (its render {first['median']:.2f} s once compiled), the second's "
+            f"for {second['first_compile']:.2f} s (its render {second['median']:.2f} s).", ""]
 
 
 def _new_scene_lines(scenes: list[dict] | None) -> list[str]:
@@ -703,6 +724,7 @@ def markdown(r: dict) -> str:
         f"the same render with the cache warm: {r['cold']['median']:.2f} s.",
         "",
         *_new_scene_lines(r["cold"].get("mesh_scenes")),
+        *_light_scene_lines(r["cold"].get("light_scenes")),
         "## Scaling",
         "",
         "![time against pixels, samples, depth and triangles](performance_scaling.png)",
