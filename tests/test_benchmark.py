@@ -50,6 +50,7 @@ def test_bench_sections_are_checked_before_running(tmp_path):
 def test_mesh_profile_counts_on_a_small_mesh(monkeypatch, tmp_path):
     import tracer
     from tracer.geometry import SceneGeometry
+    from tracer.shapes.bvh_build import TRAVERSAL_COST
     from validation.benchmark import mesh_profile
 
     monkeypatch.setattr(mesh_profile, "RAYS", 4096)
@@ -58,6 +59,7 @@ def test_mesh_profile_counts_on_a_small_mesh(monkeypatch, tmp_path):
     p = mesh_profile.profile_tracer(SceneGeometry(scene))
     assert p["rays"] == 4096 and 0 < p["hit_fraction"] <= 1
     assert p["closest_seconds"] > 0 and p["shadow_seconds"] > 0 and p["bvh_build_seconds"] > 0
+    assert TRAVERSAL_COST <= p["bvh_sah_cost"] < 500    # a root's step at least; less than one leaf of all
     assert p["closest_batch_seconds"] > 0 and p["shadow_batch_seconds"] > 0
     assert 1 <= p["steps_mean"] <= p["bvh_rows"] and p["tests_mean"] > 0
     assert 1 / mesh_profile.PACKET <= p["packet_busy"] < 1   # walks of different lengths leave lanes idle

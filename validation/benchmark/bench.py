@@ -884,6 +884,8 @@ def mesh_markdown(rows: dict) -> list[str]:
         "| scene loading (XML, OBJ, normals) [s] | " + cells(lambda x: f"{x['load_seconds']:.2f}",
                                                          lambda x: f"{x['setup_seconds']:.2f} (with BVH)") + " |",
         "| BVH build alone [s] | " + cells(lambda x: f"{x['profile']['bvh_build_seconds']:.2f}", None) + " |",
+        "| the BVH's SAH cost: a walk's expected triangle tests, of a ray through its root box (`bvh_build.sah_cost`) | "
+        + cells(number("bvh_sah_cost"), None) + " |",
         "| geometry: BVH (or cache hit), tables [s] | " + cells(lambda x: f"{x['geometry_seconds']:.2f}", None) + " |",
         "| first render: kernel compile (Dr.Jit's kernel cache as the bench left it) [s] | " + cells(lambda x: f"{x['first_compile']:.2f}", None) + " |",
         "| render [s] | " + cells(lambda x: f"{x['median']:.2f}", lambda x: f"{x['median']:.2f}") + " |",

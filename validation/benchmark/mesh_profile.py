@@ -60,6 +60,7 @@ def profile_tracer(geometry) -> dict:
     from tracer.jit import NO_PRIM, Array3f, Float, UInt32
 
     from tracer.shapes.bvh import layout
+    from tracer.shapes.bvh_build import build, sah_cost
 
     points = geometry.meshes.tri_vertices.reshape(-1, 3)
     o, d, dist = random_rays(points.min(axis=0), points.max(axis=0))
@@ -83,6 +84,7 @@ def profile_tracer(geometry) -> dict:
         start = time.perf_counter()
         layout(geometry.meshes.tri_vertices)
         out["bvh_build_seconds"] = time.perf_counter() - start
+        out["bvh_sah_cost"] = sah_cost(build(geometry.meshes.tri_vertices))   # the tree's quality
         steps, tests = (a.numpy() for a in geometry.meshes.bvh.closest_hit_work(o, d))
         work = (steps + tests)[:len(steps) // PACKET * PACKET].reshape(-1, PACKET)
         out.update(steps_mean=float(steps.mean()), steps_p90=float(np.percentile(steps, 90)),
