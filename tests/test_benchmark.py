@@ -290,3 +290,11 @@ def test_cold_start_writes_the_light_scenes_compile_times_where_measured():
     text = " ".join(benchmark._light_scene_lines(scenes))
     assert "144 then 256 rectangles" in text and "compiles for 3.32 s" in text and "for 0.04 s (its render 3.28 s)" in text
     assert benchmark._light_scene_lines(None) == []
+
+
+def test_the_report_keeps_no_folder_of_the_machine_that_ran_it():
+    """A child's tracer_package (its folder, for --against's check) stays out of performance.json, at any depth."""
+    results = {"cold": {"first_compile": 1.0, "tracer_package": "/x/tracer",
+                        "light_scenes": [{"lights": 144, "tracer_package": "/x/tracer"}]}, "runs": [1, 2]}
+    assert benchmark.without_paths(results) == {"cold": {"first_compile": 1.0, "light_scenes": [{"lights": 144}]},
+                                                "runs": [1, 2]}

@@ -570,6 +570,16 @@ def sections(mitsuba_data: Path | None = None, scene_options: dict | None = None
             "against": other}
 
 
+def without_paths(results):
+    """`results` without the children's "tracer_package" (the folder on the machine that ran them, which
+    validate bench --against checks and the report does not keep)."""
+    if isinstance(results, dict):
+        return {k: without_paths(v) for k, v in results.items() if k != "tracer_package"}
+    if isinstance(results, list):
+        return [without_paths(v) for v in results]
+    return results
+
+
 def run(out: Path, only: list[str] | None = None, mitsuba_data: Path | None = None,
         scene_options: dict | None = None, against: tuple[Path, int] | None = None) -> str:
     """Every measurement (or only the sections named, the others kept from the previous run's
@@ -600,7 +610,7 @@ def run(out: Path, only: list[str] | None = None, mitsuba_data: Path | None = No
             results[name] = section(out, progress)
             results["when"][name] = today
             results["load"][name] = [before, os.getloadavg()[0]]   # other work on the machine, 1-min averages
-    previous.write_text(json.dumps(results, indent=1))
+    previous.write_text(json.dumps(without_paths(results), indent=1))
     performance_scaling(results["scaling"], out / "performance_scaling.png")
     if "ratio" in json.dumps(results["scenes"]):
         scene_ratios({n: r["ratio"] for n, r in results["scenes"]["rows"].items() if "ratio" in r},
