@@ -2,27 +2,28 @@
 tracer.shapes.bvh_build, collapsed into 4-wide rows.
 
 The kernel walks a 4-wide tree (as Embree's and pbrt's wide BVHs, collapsed from the binary one): a row
-holds the boxes of an inner node's grandchildren, or of a child that is a leaf, so its children are 2 to
-4 and the tree half as deep. It walks it depth first, nearest child first: each step a lane at a leaf
-tests one of its triangles (in a branch that a packet of lanes skips when none of them is at a leaf;
-testing a node's child leaves whole within its step cost a packet every triangle test of any lane's
-leaves in most steps), and a lane then at a row, there from the last step or popped to after its leaf,
-tests the boxes of the row's child slots still to visit (a while-while walk, after Aila and Laine,
-"Understanding the efficiency of ray traversal on GPUs", 2009: the popped row's load is in flight during
-the triangle test, and a ray takes about as many steps as rows it visits). From a row it goes on to
-the nearest child whose box it enters; if it entered one other, it pushes that child, and if several, it
-pushes the row back with those slots left in its link's mask, to be tested again, against the then
-closest hit, when popped. So each row has at most one entry on the per-lane stack: its size is the wide
-tree's depth. The shrinking closest hit culls the far boxes. The stack lives in registers, one loop
-variable per level (a push shifts them down, a pop up), since Dr.Jit 1.5's local memory
-(dr.alloc_local) lost pushed entries on the LLVM backend (still so: a stack there gave wrong hits).
-Measured on the rays of a render of mitsuba-renderer/mitsuba-data's matpreview scene (342 x 256, 16 spp,
-replayed; CPU seconds against this walk, interleaved, under load): such a ray walked unbounded tests
-16.5 rows (1.4 of them rows pushed back) and 6.0 triangles, so row steps dominate; yet 8-wide rows (three
-binary levels a row, two cache lines) took 1.08x the closest-hit and 1.21x the shadow walks' time for the
-same hits, starting the batched walk after the root row's step (taken in the kernel that evaluates the
-rays) 1.03x and 0.98x, and 16-lane packets on 8-lane AVX2 1.2-1.5x; BATCH_LANES (4096 to 32768) and
-REFILL_PERIOD (1 to 4) made no difference beyond the machine's noise.
+holds the boxes of an inner node's grandchildren, or of a child that is a leaf, so its children are 2 to 4
+and the tree half as deep. It walks it depth first, nearest child first: each step a lane at a row tests the
+boxes of the row's child slots still to visit, and a lane then at a leaf, there from the last step or just
+entered from its row, tests one of its triangles (in a branch that a packet of lanes skips when none of them
+is at a leaf; testing a node's child leaves whole within its step cost a packet every triangle test of any
+lane's leaves in most steps); a lane that entered no box or tested its leaf's last triangle pops, once a
+step (after Aila and Laine, "Understanding the efficiency of ray traversal on GPUs", 2009: a ray takes about
+as many steps as rows it visits). Testing the triangle first, then the row popped to after a leaf, took the
+same hits 1.7% (closest hit) and 2.3% (shadow) more steps on matpreview's rays (below), and a second pop a
+step. From a row it goes on to the nearest child whose box it enters; if it entered one other, it pushes
+that child, and if several, it pushes the row back with those slots left in its link's mask, to be tested
+again, against the then closest hit, when popped. So each row has at most one entry on the per-lane stack:
+its size is the wide tree's depth. The shrinking closest hit culls the far boxes. The stack lives in
+registers, one loop variable per level (a push shifts them down, a pop up), since Dr.Jit 1.5's local memory
+(dr.alloc_local) lost pushed entries on the LLVM backend (still so: a stack there gave wrong hits). Measured
+on the rays of a render of mitsuba-renderer/mitsuba-data's matpreview scene (342 x 256, 16 spp, replayed;
+CPU seconds against this walk, interleaved, under load): such a ray walked unbounded tests 16.5 rows (1.4 of
+them rows pushed back) and 6.0 triangles, so row steps dominate; yet 8-wide rows (three binary levels a row,
+two cache lines) took 1.08x the closest-hit and 1.21x the shadow walks' time for the same hits, starting the
+batched walk after the root row's step (taken in the kernel that evaluates the rays) 1.03x and 0.98x, and
+16-lane packets on 8-lane AVX2 1.2-1.5x; BATCH_LANES (4096 to 32768) and REFILL_PERIOD (1 to 4) made no
+difference beyond the machine's noise.
 
 A row is sixteen 32-bit words (64 bytes, one cache line), gathered in one packet load: per child slot,
 its box's corners as 16-bit coordinates on a grid over the root box, rounded outwards by a further grid
@@ -228,39 +229,40 @@ class BVHKernel:
         return self._row(self.root_words, self.root, Bool(True), slope, offset, t_max)[0]
 
     def _step(self, item: UInt32, stack: tuple, payload: tuple, slope: Array3f, offset: Array3f,
-              t_end, visit_triangle, finished) -> tuple[UInt32, tuple, tuple, Bool, Bool]:
-        """One step of the walk (see _walk) for every lane: a lane at a leaf tests its triangle and goes on
-        to the leaf's next one or pops; a lane then at a row (just popped to, or there from the last step)
-        tests the row's boxes and goes on. The next item, the stack, the payload, and which lanes tested a
-        triangle and which a row. The popped row's address is known before the triangle test's end, so a
-        lane loads both at once."""
+              t_end, visit_triangle, finished, farthest: bool) -> tuple[UInt32, tuple, tuple, Bool, Bool]:
+        """One step of the walk (see _walk) for every lane: a lane at a row tests the row's boxes and goes
+        on to the nearest child it enters; a lane then at a leaf (there from the last step, or just entered)
+        tests its triangle and goes on to the leaf's next one; a lane that entered nothing or tested its
+        leaf's last one pops (`farthest`: see _row). The next item, the stack, the payload, and which lanes
+        tested a triangle and which a row."""
         none = UInt32(0xFFFFFFFF)
+        inner = (item < LEAF_BIT) & ~finished(*payload)
+        x = dr.gather(ArrayXu, self.nodes, item >> WIDTH, inner, shape=(4 * WIDTH, dr.width(item)))
+        entered, near, push, pushed = self._row(x, item, inner, slope, offset, t_end(*payload), farthest)
+        item = dr.select(entered, near, item)
+        stack = tuple(dr.select(push, p, s) for p, s in zip((pushed, *stack[:-1]), stack))
         at_leaf = (item >= LEAF_BIT) & (item != none)   # else a row, or nothing left (a lane in the loop's tail)
         payload = dr.if_stmt((item, *payload), at_leaf,
                              lambda i, *p: visit_triangle((i & (LEAF_BIT - 1)) >> 3, *p), lambda i, *p: p)
         more = at_leaf & ((item & 7) > 1)   # the leaf's next triangle: first + 1, count - 1
-        item, stack = self._pop(at_leaf & ~more, item, stack)
+        item, stack = self._pop((inner & ~entered) | (at_leaf & ~more), item, stack)
         item = dr.select(more, item + 7, item)
-        inner = (item < LEAF_BIT) & ~finished(*payload)
-        x = dr.gather(ArrayXu, self.nodes, item >> WIDTH, inner, shape=(4 * WIDTH, dr.width(item)))
-        entered, near, push, pushed = self._row(x, item, inner, slope, offset, t_end(*payload))
-        pushed = (pushed, *stack[:-1])
-        item, stack = self._pop(inner & ~entered, item, stack)
-        item = dr.select(entered, near, item)
-        stack = tuple(dr.select(push, p, s) for p, s in zip(pushed, stack))
         return item, stack, payload, at_leaf, inner
 
     def _row(self, x: list[UInt32], item: UInt32, inner: Bool, slope: Array3f, offset: Array3f,
-             t_end: Float) -> tuple[Bool, UInt32, Bool, UInt32]:
+             t_end: Float, farthest: bool = False) -> tuple[Bool, UInt32, Bool, UInt32]:
         """The test of a row's words x, reached by link `item`, of its child slots still to visit (the link's
         mask), where `inner`: (whether the ray enters one, the nearest one's link, whether it enters
-        others, and what then goes on the stack: the one other, or the row with those slots left)."""
-        t_best, near, other, near_bit, hits = Float(INF), UInt32(0), UInt32(0), UInt32(0), UInt32(0)
-        for k in range(WIDTH):   # `other`: with two slots entered, the farther one's link
+        others, and what then goes on the stack: the one other, or the row with those slots left).
+        `farthest`: the child whose box the ray enters last comes first instead of the nearest (for an
+        any-hit query: see occluded)."""
+        t_best, near, other, near_bit, hits = Float(-INF if farthest else INF), UInt32(0), UInt32(0), \
+            UInt32(0), UInt32(0)
+        for k in range(WIDTH):   # `other`: with two slots entered, the later one's link
             hit, t, link = self._child(x, k, slope, offset, t_end)
             hit &= inner & ((item & (1 << k)) != 0)
             hits |= dr.select(hit, 1 << k, 0)
-            closer = hit & (t < t_best)
+            closer = hit & ((t > t_best) if farthest else (t < t_best))
             other = dr.select(closer, near, dr.select(hit, link, other))
             t_best, near, near_bit = (dr.select(closer, t, t_best), dr.select(closer, link, near),
                                       dr.select(closer, 1 << k, near_bit))
@@ -275,12 +277,12 @@ class BVHKernel:
         return dr.select(pop, stack[0], item), tuple(dr.select(pop, q, s) for q, s in zip(popped, stack))
 
     def _walk(self, ray: tuple, active: Bool, t_max, visit_triangle, finished, payload: tuple,
-              count_work: bool = False) -> tuple:
-        """Depth-first traversal, nearest child first, of the boxes that o + t d, 0 <= t <= t_max(ray,
-        *payload), enters, ray = (o, d, ...): payload = visit_triangle(triangle slot, ray, *payload) for each
-        triangle of each such leaf; a lane stops at the end or once finished(*payload). Each step a lane at a
-        leaf tests one of its triangles, and a lane then at a row tests the boxes of the row's child slots
-        still to visit (its item's mask) (_step). From a row it goes to the nearest child it enters; it
+              count_work: bool = False, farthest: bool = False) -> tuple:
+        """Depth-first traversal, nearest child first (farthest first with `farthest`), of the boxes that
+        o + t d, 0 <= t <= t_max(ray, *payload), enters, ray = (o, d, ...): payload = visit_triangle(triangle
+        slot, ray, *payload) for each triangle of each such leaf; a lane stops at the end or once finished(*payload). Each step a lane at a
+        row tests the boxes of the row's child slots still to visit (its item's mask), and a lane then at a
+        leaf tests one of its triangles (_step). From a row it goes to the nearest child it enters; it
         pushes the other one it enters, or, if several, the row back with those slots (tested again, against
         the then closest hit, when popped).
         Each lane walks its own ray, in one loop that a packet of lanes leaves when its last lane is done.
@@ -298,7 +300,7 @@ class BVHKernel:
         def body(item, *rest):
             payload, stack = rest[c:c + n], rest[c + n:]
             item, stack, payload, tested, row = self._step(item, stack, payload, slope, offset, t_end, visit,
-                                                           finished)
+                                                           finished, farthest)
             counted = (rest[0] + dr.select(row, 1, 0), rest[1] + dr.select(tested, 1, 0)) if c else ()
             return (item, *counted, *payload, *stack)
 
@@ -308,17 +310,18 @@ class BVHKernel:
         return (*out[1 + c:1 + c + n], *out[1:1 + c])
 
     def _walk_batch(self, ray: tuple, active: Bool, t_max, visit_triangle, finished, payload: tuple,
-                    kind: str = "") -> tuple:
+                    kind: str = "", farthest: bool = False) -> tuple:
         """The walk of _walk over a batch of rays held in memory, by persistent lanes (Aila and Laine,
         "Understanding the efficiency of ray traversal on GPUs", 2009): BATCH_LANES lanes each take the
         next untraced ray from a shared counter when theirs is done, so that a packet of lanes keeps
         working until the batch is done instead of waiting for its slowest ray (with incoherent rays most of
         a packet's lanes are idle in _walk). A done lane takes its next ray every REFILL_PERIOD steps, so the
         fetch runs for several lanes at once. Each ray's walk, and so its result, is that of _walk.
-        `ray` and `payload`: arrays of one value per ray (or one for all); returns the payload per ray,
-        unchanged where not active or where the ray enters no box of the root row (_enters_root, tested
-        here in the kernel that evaluates the rays; the walked rays' results are selected against the start
-        values where they are read next, not copied). `kind`: the query, for timed_walks."""
+        `ray`, `payload` (arrays of one value per ray, or one for all) and `farthest` as in _walk; returns
+        the payload per ray, unchanged where not active or where the ray enters no box of the root row
+        (_enters_root, tested here in the kernel that evaluates the rays; the walked rays' results are
+        selected against the start values where they are read next, not copied). `kind`: the query, for
+        timed_walks."""
         width = max(dr.width(x) for x in (*ray, *payload, active))
         out = tuple(dr.empty(type(x), width) for x in payload)   # written where walked
         walked = _batch_array(active & self._enters_root(ray[0], ray[1], t_max(ray, *payload)), width)
@@ -351,7 +354,8 @@ class BVHKernel:
             payload, stack = rest[k + 2:k + 2 + m], rest[k + 2 + m:]
             item, stack, payload, _, _ = self._step(item, stack, payload, slope, offset,
                                                     lambda *p: t_max(values, *p),
-                                                    lambda slot, *p: visit_triangle(slot, values, *p), finished)
+                                                    lambda slot, *p: visit_triangle(slot, values, *p), finished,
+                                                    farthest)
             step += 1
             take = ((item == none) | finished(*payload)) & ((step % REFILL_PERIOD) == 0)
 
@@ -410,14 +414,18 @@ class BVHKernel:
     def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, target: UInt32,
                  active: Bool = True, batch: bool = False) -> Bool:
         """Whether a BVH triangle other than skip and target lies on o + t d, 0 < t < dist; False where
-        not active (such lanes skip the traversal). `batch`: as in closest_hit."""
+        not active (such lanes skip the traversal). `batch`: as in closest_hit. Any hit answers, so the walk
+        takes a row's children farthest first: a shadow ray leaves a surface through the boxes of that
+        surface's own leaves, which seldom block it (on matpreview's shadow rays, below, 16.6 steps a ray
+        against 21.9 nearest first, 17.9 in the rows' order; on the bunny of shape_ply_bunny, 16.4, 20.4
+        and 17.5)."""
         def visit_triangle(slot, ray, blocked):
             o, d, dist, skip, target = ray
             return (blocked | (self._primitive(slot, o, d, 0.0, dist, skip, target)[0] < dist),)
 
         walk = partial(self._walk_batch, kind="shadow") if batch else self._walk
         return walk((o, d, Float(dist), UInt32(skip), UInt32(target)), Bool(active), lambda ray, _: ray[2],
-                    visit_triangle, lambda blocked: blocked, (Bool(False),))[0]
+                    visit_triangle, lambda blocked: blocked, (Bool(False),), farthest=True)[0]
 
     def closest_hit_work(self, o: Array3f, d: Array3f) -> tuple[UInt32, UInt32]:
         """Diagnostics: the rows tested (a row popped back counts again) and the triangles tested by each ray's
