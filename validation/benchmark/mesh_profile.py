@@ -109,15 +109,17 @@ def every_bounce_batched():
 
 
 def profile_render(render_once) -> dict:
-    """Where one render's time goes: render_once() -> its seconds, run with every bounce's BVH walks batched
-    and timed (every_bounce_batched, tracer.shapes.bvh.timed_walks: each walk waits for its inputs and its
-    end, so this render takes a little longer than an untimed one). Returns its seconds and those of the closest-hit and shadow walks,
-    and the fraction of each query's rays that were walked (the others enter no child box of the BVH's
-    root row)."""
+    """Where one render's time goes: render_once() -> its seconds, run (after an untimed render that compiles
+    its kernels) with every bounce's BVH walks batched and timed (every_bounce_batched,
+    tracer.shapes.bvh.timed_walks: each walk waits for its inputs and its end, so this render takes a little
+    longer than an untimed one). Returns its seconds and those of the closest-hit and shadow walks, and the
+    fraction of each query's rays that were walked (the others enter no child box of the BVH's root row)."""
     from tracer.shapes.bvh import timed_walks
 
-    with timed_walks() as walks, every_bounce_batched():
-        seconds = render_once()
+    with every_bounce_batched():
+        render_once()         # its kernels compiled first: a timed walk would count their compilation
+        with timed_walks() as walks:
+            seconds = render_once()
     closest, shadow = walks.get("closest hit", 0.0), walks.get("shadow", 0.0)
     out = {"timed_render_seconds": seconds, "closest_walk_seconds": closest, "shadow_walk_seconds": shadow,
            "rest_seconds": seconds - closest - shadow}
