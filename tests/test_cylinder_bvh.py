@@ -13,19 +13,10 @@ import tracer.shapes.cylinder as cylinder_module
 from tracer.geometry import SceneGeometry, uses_bvh
 from tracer.rendering import render
 
-ROOM = """<scene version="3.0.0">
-<sensor type="perspective"><float name="fov" value="40"/>
-  <transform name="to_world"><lookat origin="0, 0, 3.9" target="0, 0, 0" up="0, 1, 0"/></transform>
-  <film type="hdrfilm"><integer name="width" value="{size}"/><integer name="height" value="{size}"/><rfilter type="box"/></film></sensor>
-<bsdf type="diffuse" id="white"><rgb name="reflectance" value="0.8"/></bsdf>
-<bsdf type="diffuse" id="checks"><texture type="checkerboard" name="reflectance"/></bsdf>
-<bsdf type="roughconductor" id="brushed"><float name="alpha_u" value="0.05"/><float name="alpha_v" value="0.4"/></bsdf>
-<shape type="rectangle"><transform name="to_world"><rotate x="1" angle="-90"/><translate y="-1"/></transform><ref id="white"/></shape>
-<shape type="rectangle"><transform name="to_world"><translate z="-1"/></transform><ref id="white"/></shape>
-<shape type="rectangle"><transform name="to_world"><scale x="0.3" y="0.3"/><rotate x="1" angle="90"/><translate y="0.99"/></transform>
-  <emitter type="area"><rgb name="radiance" value="10"/></emitter></shape>
-{cylinders}
-</scene>"""
+from .test_sphere_bvh import ROOM     # the room both sets of shapes stand in
+
+MATERIALS = """<bsdf type="diffuse" id="checks"><texture type="checkerboard" name="reflectance"/></bsdf>
+<bsdf type="roughconductor" id="brushed"><float name="alpha_u" value="0.05"/><float name="alpha_v" value="0.4"/></bsdf>"""
 
 
 def many_cylinders(tmp_path, n: int = 30, size: int = 24):
@@ -39,7 +30,7 @@ def many_cylinders(tmp_path, n: int = 30, size: int = 24):
                          f'<point name="p1" x="{x + rng.uniform(-0.3, 0.3)}" y="{y + 0.3}" z="{z + rng.uniform(-0.3, 0.3)}"/>'
                          f'<float name="radius" value="{r}"/>{flip}{body}</shape>')
     path = tmp_path / "cylinders.xml"
-    path.write_text(ROOM.format(size=size, cylinders="\n".join(cylinders)))
+    path.write_text(ROOM.format(size=size, shapes="\n".join([MATERIALS, *cylinders])))
     return tracer.load_scene(str(path))
 
 

@@ -15,13 +15,13 @@ from tracer.rendering import render
 ROOM = """<scene version="3.0.0">
 <sensor type="perspective"><float name="fov" value="40"/>
   <transform name="to_world"><lookat origin="0, 0, 3.9" target="0, 0, 0" up="0, 1, 0"/></transform>
-  <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="24"/><rfilter type="box"/></film></sensor>
+  <film type="hdrfilm"><integer name="width" value="{size}"/><integer name="height" value="{size}"/><rfilter type="box"/></film></sensor>
 <bsdf type="diffuse" id="white"><rgb name="reflectance" value="0.8"/></bsdf>
 <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="-90"/><translate y="-1"/></transform><ref id="white"/></shape>
 <shape type="rectangle"><transform name="to_world"><translate z="-1"/></transform><ref id="white"/></shape>
 <shape type="rectangle"><transform name="to_world"><scale x="0.3" y="0.3"/><rotate x="1" angle="90"/><translate y="0.99"/></transform>
   <emitter type="area"><rgb name="radiance" value="10"/></emitter></shape>
-{spheres}
+{shapes}
 </scene>"""
 
 
@@ -35,7 +35,7 @@ def many_spheres(tmp_path, n: int = 40):
         spheres.append(f'<shape type="sphere"><point name="center" x="{x}" y="{-1 + r}" z="{z}"/>'
                        f'<float name="radius" value="{r}"/>{body}</shape>')
     path = tmp_path / "spheres.xml"
-    path.write_text(ROOM.format(spheres="\n".join(spheres)))
+    path.write_text(ROOM.format(size=24, shapes="\n".join(spheres)))
     return tracer.load_scene(str(path))
 
 
