@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml scripts/setup.sh
+$(STAMP): pyproject.toml scripts/setup.sh native/pyproject.toml native/CMakeLists.txt native/bvh_native.cpp
 	bash scripts/setup.sh $(VENV)
 	touch $(STAMP)
 

@@ -1,5 +1,6 @@
 """The BVH traversal finds exactly the hits of the brute-force tests it replaces."""
 import os
+import sys
 
 import numpy as np
 import pytest
@@ -263,15 +264,68 @@ def test_build_of_equal_triangles_stays_balanced():
     assert len(tree.levels) <= 10 and (tree.count[~tree.inner] <= LEAF_SIZE).all()
 
 
-def test_build_compiles_no_kernel_anew_for_another_mesh():
-    """The build's kernels take sizes, counts and grid constants as opaque values: a mesh of another size
-    and extent runs the kernels of the previous build (a value baked into a kernel as a literal would
-    compile it anew for every scene: most of a second). Compared by kernel hash, whatever Dr.Jit's disk
-    cache holds."""
+def test_layout_compiles_no_kernel_anew_for_another_mesh():
+    """The layout's encoding kernels (tracer.shapes.bvh; the tree itself is built by the compiled
+    extension) take sizes, counts and grid constants as opaque values: a mesh of another size and extent
+    runs the kernels of the previous layout (a value baked into a kernel as a literal would compile it anew
+    for every scene: most of a second). Compared by kernel hash, whatever Dr.Jit's disk cache holds."""
     rng = np.random.default_rng(13)
     first = kernel_hashes(lambda: layout(rng.uniform(-1, 1, (3000, 3, 3))))
     second = kernel_hashes(lambda: layout(rng.uniform(-1, 1, (2345, 3, 3)) * [3.0, 0.5, 2.0] + 10))
     assert second and second <= first
+
+
+@pytest.mark.parametrize("real", [np.float32, np.float64])
+def test_build_is_a_tree_of_nested_boxes_over_every_triangle_once(real):
+    """The compiled build's tree, checked without its code: levels hold consecutive nodes, each inner
+    node's children are a pair on the next level; the leaves' slots tile [0, n) and `order` is a
+    permutation, so every triangle lies in exactly one leaf; a leaf's box is exactly its triangles' and an
+    inner node's exactly its children's (so every box contains its subtree's triangles); the vertices'
+    precision is kept; indexed triangles (vertices, faces) give the same tree as their corners; and the
+    tree's SAH cost is under a third of the same nodes with the triangles dealt among the leaves at random."""
+    rng = np.random.default_rng(17)
+    corners = rng.uniform(-1, 1, (700, 1, 3)) * [2.0, 1.0, 0.3] + rng.uniform(-0.05, 0.05, (700, 3, 3))
+    faces = rng.permutation(2100).reshape(700, 3)     # small triangles, their corners shuffled in `vertices`
+    vertices = np.empty((2100, 3), real)
+    vertices[faces] = corners
+    tree, tris = build(vertices, faces), vertices[faces]
+    n, nodes = len(faces), len(tree.left)
+    assert tree.lo.dtype == real and tree.hi.dtype == real
+    assert tree.levels[0] == (0, 1) and tree.levels[-1][1] == nodes
+    assert all(e == b2 for (_, e), (b2, _) in zip(tree.levels, tree.levels[1:]))
+    for (b, e), (b2, e2) in zip(tree.levels, tree.levels[1:] + [(nodes, nodes)]):
+        inner = b + np.flatnonzero(tree.left[b:e] >= 0)
+        np.testing.assert_array_equal(tree.left[inner], b2 + 2 * np.arange(len(inner)))
+        np.testing.assert_array_equal(tree.right[inner], tree.left[inner] + 1)
+        assert e2 - b2 == 2 * len(inner)
+    leaf = np.flatnonzero(~tree.inner)
+    assert (tree.count[leaf] >= 1).all() and (tree.count[leaf] <= LEAF_SIZE).all() and (tree.count[tree.inner] == 0).all()
+    covered = np.zeros(n, np.int64)
+    for node in leaf:
+        covered[tree.first[node]:tree.first[node] + tree.count[node]] += 1
+    assert (covered == 1).all()
+    np.testing.assert_array_equal(np.sort(tree.order), np.arange(n))
+    for node, mine in _node_slots(tree).items():
+        assert np.array_equal(tree.lo[node], tris[mine].min(axis=(0, 1)))
+        assert np.array_equal(tree.hi[node], tris[mine].max(axis=(0, 1)))
+    corners = build(tris)
+    for name in ("lo", "hi", "left", "right", "first", "count", "order"):
+        np.testing.assert_array_equal(getattr(corners, name), getattr(tree, name))
+    assert corners.levels == tree.levels
+    lo, hi, dealt = tree.lo.copy(), tree.hi.copy(), rng.permutation(tree.order)
+    for node, mine in _node_slots(Tree(lo, hi, tree.left, tree.right, tree.first, tree.count, dealt,
+                                       tree.levels)).items():
+        lo[node], hi[node] = tris[mine].min(axis=(0, 1)), tris[mine].max(axis=(0, 1))
+    assert sah_cost(Tree(lo, hi, tree.left, tree.right, tree.first, tree.count, dealt, tree.levels)) > 3 * sah_cost(tree)
+
+
+def test_build_without_its_extension_says_how_to_install_it(monkeypatch):
+    """Without the compiled extension the build refuses in one line, naming the command that installs it."""
+    from tracer.errors import BackendError
+
+    monkeypatch.setitem(sys.modules, "bvh_native", None)     # import fails
+    with pytest.raises(BackendError, match=r"pip install \./native"):
+        build(np.eye(3)[None])
 
 
 def test_the_disk_cache_folder(monkeypatch, tmp_path):
