@@ -7,7 +7,6 @@ kind, a smooth mesh or a second light the scene lacks adds no instruction.
 """
 from __future__ import annotations
 
-import itertools
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import cached_property
@@ -65,7 +64,10 @@ def _crossed(sets: list, p0: np.ndarray, n: np.ndarray, light_below: bool, light
         return False
     lo, hi = zip(*(s.side_bounds(p0, n) for s in sets))
     above, below = light_below and max(hi) > eps, light_above and min(lo) < -eps
-    for side in (s.sides(p0, n) for s in sets) if above or below else ():
+    if not (above or below):      # the bounds already keep the sets to the lights' side
+        return False
+    for s in sets:
+        side = s.sides(p0, n)
         if (above and np.any(side > eps)) or (below and np.any(side < -eps)):
             return True
     return False

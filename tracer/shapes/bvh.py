@@ -280,8 +280,8 @@ class BVHKernel:
               count_work: bool = False, farthest: bool = False) -> tuple:
         """Depth-first traversal, nearest child first (farthest first with `farthest`), of the boxes that
         o + t d, 0 <= t <= t_max(ray, *payload), enters, ray = (o, d, ...): payload = visit_triangle(triangle
-        slot, ray, *payload) for each triangle of each such leaf; a lane stops at the end or once finished(*payload). Each step a lane at a
-        row tests the boxes of the row's child slots still to visit (its item's mask), and a lane then at a
+        slot, ray, *payload) for each triangle of each such leaf; a lane stops at the end or once
+        finished(*payload). Each step a lane at a row tests the boxes of the row's child slots still to visit (its item's mask), and a lane then at a
         leaf tests one of its triangles (_step). From a row it goes to the nearest child it enters; it
         pushes the other one it enters, or, if several, the row back with those slots (tested again, against
         the then closest hit, when popped).
