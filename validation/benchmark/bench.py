@@ -300,18 +300,26 @@ def cold_start(progress) -> dict:
     job = _tracer("path", size=600, spp=1, max_depth=5)
     job["repeats"] = 1
     out = measure(job, cold=True)
+    out["mesh_scenes"] = _first_renders(progress, "triangles", 4, [
+        (n, f"a mesh scene of {n:,} triangles", lambda folder, n=n: _sphere_scene(folder, n))
+        for n in NEW_SCENE_TRIANGLES])
+    out["light_scenes"] = _first_renders(progress, "lights", 6, [
+        (n * n, f"the Cornell box with {n * n} lights", lambda folder, n=n: tiled_light_cornell_box(folder, n))
+        for n in LIGHT_TILES])
+    return out
+
+
+def _first_renders(progress, key: str, max_depth: int, scenes: list) -> list[dict]:
+    """Each scene's first render (path, 256 x 256, 16 spp), in turn, each in a process of its own, the kernel
+    cache empty before the first. `scenes`: (size, description, a function writing the scene into a folder);
+    each measurement is returned with its size as `key`."""
+    out = []
     with tempfile.TemporaryDirectory() as home, tempfile.TemporaryDirectory() as tmp:
-        for n in NEW_SCENE_TRIANGLES:
-            progress(f"cold start, a mesh scene of {n:,} triangles")
-            job = _tracer("path", size=256, scene=_sphere_scene(Path(tmp), n), spp=16, max_depth=4)
+        for size, description, write in scenes:
+            progress(f"cold start, {description}")
+            job = _tracer("path", size=256, scene=write(Path(tmp)), spp=16, max_depth=max_depth)
             job["repeats"] = 1
-            out.setdefault("mesh_scenes", []).append(measure(job, home=home) | {"triangles": n})
-    with tempfile.TemporaryDirectory() as home, tempfile.TemporaryDirectory() as tmp:
-        for n in LIGHT_TILES:
-            progress(f"cold start, the Cornell box with {n * n} lights")
-            job = _tracer("path", size=256, scene=tiled_light_cornell_box(Path(tmp), n), spp=16, max_depth=6)
-            job["repeats"] = 1
-            out.setdefault("light_scenes", []).append(measure(job, home=home) | {"lights": n * n})
+            out.append(measure(job, home=home) | {key: size})
     return out
 
 
