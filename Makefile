@@ -18,7 +18,8 @@ demo: $(STAMP)
 		--estimator path --spp 64
 
 test: $(STAMP)
-	$(PYTHON) -m pytest -q
+	@rm -f .pytest_cache/last-started
+	$(PYTHON) -m pytest -q || { rc=$$?; [ $$rc -le 128 ] || echo "pytest died of signal $$((rc - 128)) in $$(cat .pytest_cache/last-started 2>/dev/null)" >&2; exit $$rc; }
 
 # The edit loop: everything but the tests marked slow (statistical comparisons against Mitsuba, the browser, imports).
 test-fast: $(STAMP)

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
+#include <system_error>
 namespace nb = nanobind;
 using u32 = uint32_t; using i64 = int64_t;
 // the build's parameters (tracer/shapes/bvh_build.py's LEAF_SIZE, BINS, SAMPLES, TRAVERSAL_COST), passed in
@@ -33,10 +34,21 @@ static void keys_impl(const R *v, const i64 *f, i64 n, float *boxes, u32 *bits) 
 static void real_check(const nb::ndarray<nb::c_contig, nb::device::cpu> &v) {
     if (v.dtype() != nb::dtype<float>() && v.dtype() != nb::dtype<double>())
         throw std::invalid_argument("vertices: float32 or float64");
+    if (v.ndim() != 2 || v.shape(1) != 3) throw std::invalid_argument("vertices: (m, 3)");
+}
+// faces (n, 3) of vertices [0, m): an index outside would read outside the vertices
+static void faces_check(const A<i64> &f, size_t m) {
+    if (f.ndim() != 2 || f.shape(1) != 3) throw std::invalid_argument("faces: (n, 3)");
+    const i64 *p = f.data();
+    for (size_t i = 0; i < 3 * f.shape(0); ++i)
+        if (p[i] < 0 || (size_t) p[i] >= m) throw std::invalid_argument("faces: a vertex index outside the vertices");
 }
 static void triangle_keys(nb::ndarray<nb::c_contig, nb::device::cpu> v, A<i64> f, A<float> boxes, A<u32> bits) {
+    real_check(v); faces_check(f, v.shape(0));
     i64 n = f.shape(0);
-    real_check(v);
+    if (boxes.ndim() != 2 || boxes.shape(0) != (size_t) n || boxes.shape(1) != 6 || bits.ndim() != 2
+        || bits.shape(0) != 3 || bits.shape(1) != (size_t) n)
+        throw std::invalid_argument("triangle_keys: boxes (n, 6), bits (3, n)");
     if (v.dtype() == nb::dtype<float>()) keys_impl((const float *) v.data(), f.data(), n, boxes.data(), bits.data());
     else keys_impl((const double *) v.data(), f.data(), n, boxes.data(), bits.data());
 }
@@ -79,12 +91,19 @@ static void axis_split(const u32 *ids, const float *boxes, i64 a, i64 n, i64 b, 
     half = h;
 }
 
+// f(0), ..., f(tasks - 1), in contiguous shares over up to `threads` threads, this one among them; where a
+// thread cannot be started, this one does its share (the results do not depend on who does which)
 template <class F> static void parallel(i64 tasks, int threads, F &&f) {
-    if (threads <= 1 || tasks < 2) { for (i64 i = 0; i < tasks; ++i) f(i); return; }
+    if (tasks <= 0) return;
+    const int t = (int) std::min<i64>(std::max(threads, 1), tasks);
+    auto share = [&](int j) { for (i64 i = tasks * j / t; i < tasks * (j + 1) / t; ++i) f(i); };
     std::vector<std::thread> pool;
-    int t = (int) std::min<i64>(threads, tasks);
-    for (int j = 0; j < t; ++j)
-        pool.emplace_back([&, j] { for (i64 i = tasks * j / t; i < tasks * (j + 1) / t; ++i) f(i); });
+    int started = 1;
+    try {
+        for (; started < t; ++started) pool.emplace_back(share, started);
+    } catch (const std::system_error &) {}
+    for (int j = started; j < t; ++j) share(j);
+    share(0);
     for (auto &p : pool) p.join();
 }
 
@@ -96,12 +115,16 @@ static nb::tuple build_nodes(A<u32> ids_a, A<float> boxes_a, i64 leaf_size, i64 
     if (ids_a.ndim() != 2 || ids_a.shape(0) != 3 || boxes_a.ndim() != 2 || boxes_a.shape(1) != 6
         || boxes_a.shape(0) != ids_a.shape(1))
         throw std::invalid_argument("build_nodes: ids (3, n), boxes (n, 6)");
+    if (ids_a.shape(1) == 0) throw std::invalid_argument("build_nodes: no triangles");
+    for (size_t i = 0; i < 3 * ids_a.shape(1); ++i)
+        if (ids_a.data()[i] >= ids_a.shape(1)) throw std::invalid_argument("build_nodes: ids: a triangle outside the boxes");
     const Params p{leaf_size, bins, samples, traversal_cost}; const i64 SAMPLES = samples, LEAF_SIZE = leaf_size;
     u32 *ids = ids_a.data(); const float *boxes = boxes_a.data(); i64 n = ids_a.shape(1);
     std::vector<i64> left(2 * n, -1), right(2 * n, -1), first(2 * n, 0), count(2 * n, 0), levels;
     std::vector<uint8_t> side(n); std::vector<u32> spare(3 * n);
     std::vector<i64> begin{0}, size{n}, nb_, ns_;
     i64 n_nodes = 1;
+    {
     nb::gil_scoped_release release;
     while (!begin.empty()) {
         i64 m = begin.size(), base = n_nodes - m;
@@ -146,7 +169,7 @@ static nb::tuple build_nodes(A<u32> ids_a, A<float> boxes_a, i64 leaf_size, i64 
         begin.swap(nb_); size.swap(ns_);
         n_nodes += begin.size();
     }
-    nb::gil_scoped_acquire acquire;
+    }
     auto out = [&](std::vector<i64> &v, i64 len, std::vector<size_t> shape) {
         i64 *p = new i64[len]; std::memcpy(p, v.data(), len * sizeof(i64));
         nb::capsule owner(p, [](void *q) noexcept { delete[] (i64 *) q; });
@@ -172,9 +195,17 @@ static void leaf_impl(const R *v, const i64 *f, const i64 *order, const i64 *fir
 }
 static void leaf_boxes(nb::ndarray<nb::c_contig, nb::device::cpu> v, A<i64> f, A<i64> order, A<i64> first, A<i64> count,
                        nb::ndarray<nb::c_contig, nb::device::cpu> lo, nb::ndarray<nb::c_contig, nb::device::cpu> hi) {
-    i64 m = first.shape(0);
-    real_check(v);
+    real_check(v); faces_check(f, v.shape(0));
+    i64 m = first.shape(0), n = f.shape(0);
     if (lo.dtype() != v.dtype() || hi.dtype() != v.dtype()) throw std::invalid_argument("leaf_boxes: lo, hi of the vertices' type");
+    if (count.shape(0) != (size_t) m || lo.ndim() != 2 || lo.shape(0) != (size_t) m || lo.shape(1) != 3
+        || hi.ndim() != 2 || hi.shape(0) != (size_t) m || hi.shape(1) != 3 || order.shape(0) != (size_t) n)
+        throw std::invalid_argument("leaf_boxes: first, count (m,), lo, hi (m, 3), order (n,)");
+    for (i64 i = 0; i < m; ++i)
+        if (first.data()[i] < 0 || count.data()[i] < 0 || first.data()[i] + count.data()[i] > n)
+            throw std::invalid_argument("leaf_boxes: a leaf's slots outside the order");
+    for (i64 j = 0; j < n; ++j)
+        if (order.data()[j] < 0 || order.data()[j] >= n) throw std::invalid_argument("leaf_boxes: order: a triangle outside the faces");
     if (v.dtype() == nb::dtype<float>()) leaf_impl((const float *) v.data(), f.data(), order.data(), first.data(), count.data(), m, (float *) lo.data(), (float *) hi.data());
     else leaf_impl((const double *) v.data(), f.data(), order.data(), first.data(), count.data(), m, (double *) lo.data(), (double *) hi.data());
 }

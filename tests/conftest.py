@@ -67,3 +67,13 @@ def kernel_hashes(run) -> set[str]:
 @pytest.fixture
 def scenes() -> Path:
     return SCENES
+
+
+LAST_STARTED = ROOT / ".pytest_cache" / "last-started"
+
+
+def pytest_runtest_logstart(nodeid: str, location) -> None:
+    """Each test's id, written as it starts: where the process dies of a signal (a crash in compiled code),
+    `make test` names the test it died in (pytest itself prints nothing more)."""
+    LAST_STARTED.parent.mkdir(exist_ok=True)
+    LAST_STARTED.write_text(nodeid + "\n")

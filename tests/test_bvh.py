@@ -328,6 +328,19 @@ def test_build_without_its_extension_says_how_to_install_it(monkeypatch):
         build(np.eye(3)[None])
 
 
+@pytest.mark.parametrize("vertices, faces, message", [
+    (np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int64), "no triangles"),
+    (np.eye(3, dtype=np.float32), np.array([[0, 1, 3]]), "outside the vertices"),
+    (np.eye(3, dtype=np.float32), np.array([[0, -1, 2]]), "outside the vertices"),
+    (np.eye(3, dtype=np.float32), np.array([[0, 1]]), "faces: \\(n, 3\\)"),
+])
+def test_the_extension_refuses_what_would_take_it_outside_its_arrays(vertices, faces, message):
+    """The compiled phases check their arrays' shapes and indices before touching them: an empty or
+    malformed mesh is a ValueError, not a write or read outside an array (an empty one crashed the process)."""
+    with pytest.raises(ValueError, match=message):
+        build(vertices, faces)
+
+
 def test_the_disk_cache_folder(monkeypatch, tmp_path):
     from tracer.shapes import bvh_cache
 
