@@ -341,6 +341,48 @@ def test_the_extension_refuses_what_would_take_it_outside_its_arrays(vertices, f
         build(vertices, faces)
 
 
+PIDS = "/sys/fs/cgroup/pids"    # cgroup v1's pids controller: caps a group's threads
+
+
+_NO_THREADS = """
+import os, sys, numpy as np
+import bvh_native
+from tracer.shapes import bvh_build as b
+rng = np.random.default_rng(3)
+n = 30_000
+v, f = rng.random((3 * n, 3)).astype(np.float32), rng.integers(0, 3 * n, (n, 3))
+boxes, bits = np.empty((n, 6), np.float32), np.empty((3, n), np.uint32)
+bvh_native.triangle_keys(v, f, boxes, bits)
+ids = b._sorted_lists(bits)
+expected = bvh_native.build_nodes(ids.copy(), boxes, b.LEAF_SIZE, b.BINS, b.SAMPLES, b.TRAVERSAL_COST, 1)
+group = sys.argv[1]
+open(os.path.join(group, "cgroup.procs"), "w").write(str(os.getpid()))
+threads = int(open(os.path.join(group, "pids.current")).read())
+open(os.path.join(group, "pids.max"), "w").write(str(threads + 1))    # one more thread, not the 7 others
+got = bvh_native.build_nodes(ids, boxes, b.LEAF_SIZE, b.BINS, b.SAMPLES, b.TRAVERSAL_COST, 8)
+assert all((x == y).all() for x, y in zip(got, expected))
+print("same tree")
+"""
+
+
+@pytest.mark.skipif(not (os.path.isdir(PIDS) and os.access(PIDS, os.W_OK)),
+                    reason="needs cgroup v1's pids controller, writable (root)")
+def test_the_build_goes_on_where_threads_cannot_be_started(tmp_path):
+    """Where the system lets the build start fewer threads than it asks for (a container's cap on threads), the
+    calling thread does the rest: the same tree, not a process aborted by the threads it had started ("terminate
+    called without an active exception", as it was)."""
+    import subprocess
+
+    group = os.path.join(PIDS, f"tracer-test-{os.getpid()}")
+    os.mkdir(group)
+    try:
+        out = subprocess.run([sys.executable, "-c", _NO_THREADS, group], capture_output=True, text=True,
+                             timeout=300, env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    finally:
+        os.rmdir(group)
+    assert out.returncode == 0 and out.stdout.strip() == "same tree", out.stderr[-2000:]
+
+
 def test_the_disk_cache_folder(monkeypatch, tmp_path):
     from tracer.shapes import bvh_cache
 
