@@ -131,7 +131,7 @@ class InstanceSet:
 
     # ---- ray queries ------------------------------------------------------------------------------
     def _walk(self, batch: bool, kind: str):
-        return (lambda *a: self.top._walk_batch(*a, kind=kind)) if batch else self.top._walk
+        return (lambda *a, **k: self.top._walk_batch(*a, kind=kind, **k)) if batch else self.top._walk
 
     def _enter(self, slot: UInt32, o: Array3f, d: Array3f, skip: UInt32):
         """The instance in top-level slot `slot`: its first primitive, the ray in its group's space and
@@ -159,7 +159,8 @@ class InstanceSet:
     def occluded(self, o: Array3f, d: Array3f, dist: Float, skip: UInt32, active: Bool = True,
                  batch: bool = False) -> Bool:
         """Whether an instanced triangle other than `skip` lies on o + t d, 0 < t < dist (instanced meshes
-        never emit, so a shadow ray's target is never one of them)."""
+        never emit, so a shadow ray's target is never one of them). Any hit answers: the instances' boxes
+        farthest first, as BVHKernel.occluded's rows (a ray leaving an instance's surface enters its box first)."""
         def visit_instance(slot, ray, blocked):
             o, d, dist, skip = ray
             _, o_local, d_local, skip_local = self._enter(slot, o, d, skip)
@@ -167,7 +168,7 @@ class InstanceSet:
                                                        ~blocked),)
 
         return self._walk(batch, "shadow")((o, d, Float(dist), UInt32(skip)), Bool(active), lambda ray, _: ray[2],
-                                           visit_instance, lambda blocked: blocked, (Bool(False),))[0]
+                                           visit_instance, lambda blocked: blocked, (Bool(False),), farthest=True)[0]
 
     # ---- surface data -----------------------------------------------------------------------------
     def local(self, prim: UInt32, valid: Bool) -> tuple[Bool, UInt32, UInt32]:
