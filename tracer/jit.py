@@ -3,6 +3,7 @@
 `TRACER_BACKEND=llvm` or `=cuda` forces one; `TRACER_PRECISION=double` makes every kernel compute in
 float64. Every kernel module takes its array types from here.
 """
+import math
 import os
 
 import drjit as dr
@@ -11,8 +12,35 @@ import numpy as np
 from .errors import BackendError
 
 
-# the cores this process may use (threads for host work that leaves the interpreter lock)
-CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+def cpu_quota() -> float | None:
+    """The CPUs' worth of time this process's container may use (cgroup v2's cpu.max, else v1's
+    cpu.cfs_quota_us over cpu.cfs_period_us); None where no quota is set."""
+    try:
+        quota, period = _read("/sys/fs/cgroup/cpu.max").split()[:2]
+    except OSError:
+        try:
+            quota, period = _read("/sys/fs/cgroup/cpu/cpu.cfs_quota_us"), _read("/sys/fs/cgroup/cpu/cpu.cfs_period_us")
+        except OSError:
+            return None
+    try:
+        return int(quota) / int(period) if quota not in ("max", "-1") and int(period) > 0 else None
+    except ValueError:
+        return None
+
+
+def _read(path: str) -> str:
+    with open(path) as f:
+        return f.read().strip()
+
+
+def usable_cores() -> int:
+    """The cores this process may use: those it may run on, no more than its container's quota (rounded up)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    quota = cpu_quota()
+    return cores if quota is None else max(1, min(cores, math.ceil(quota)))
+
+
+CORES = usable_cores()   # threads for host work that leaves the interpreter lock
 
 LLVM_FIX = ("install an LLVM runtime >= 16 (Debian/Ubuntu: apt-get install libllvm19) or point "
             "DRJIT_LIBLLVM_PATH at its libLLVM.so")
