@@ -15,7 +15,8 @@ import drjit as dr
 import numpy as np
 
 from .jit import HOST_FLOAT, NO_PRIM, Array3f, Bool, Float, UInt32, opaque_u32, vec3
-from .lights import LightSample, select_sample
+from .lights import ConstantEnvironment, EnvironmentMap, LightSample, select_sample
+from .lights.choice import DEFAULT as LIGHT_CHOICE, choose
 from .lights.envmap import EnvmapKernel
 from .materials import MaterialTables
 from .media import MediaKernel
@@ -120,9 +121,12 @@ def _record(query: str, o: Array3f, d: Array3f, t_max, active=True) -> None:
 
 class SceneGeometry:
     """`bvh_threshold`: triangles above which they go into a BVH; `material_kinds`: the material codes the
-    kernel carries (materials.DIFFUSE, CONDUCTOR, ...; default: those of the scene's materials)."""
+    kernel carries (materials.DIFFUSE, CONDUCTOR, ...; default: those of the scene's materials);
+    `light_choice`: how a shadow ray's light is chosen where the scene gives no sampling_weight
+    (tracer.lights.choice.POLICIES)."""
 
-    def __init__(self, scene: Scene, bvh_threshold: int = BVH_THRESHOLD, material_kinds: set[int] | None = None):
+    def __init__(self, scene: Scene, bvh_threshold: int = BVH_THRESHOLD, material_kinds: set[int] | None = None,
+                 light_choice: str = LIGHT_CHOICE):
         self.scene = scene
         self.batch = False                     # BVH walks over rays in memory (see `batched`)
         self.shape_sets, base = [], 0          # one per kind, in primitive order
@@ -151,8 +155,14 @@ class SceneGeometry:
         self.points = scene.point_lights
         self.directionals = scene.directional_lights
         self.spots = any(light.spot is not None for light in self.points)
-        # lights a shadow ray may be sent to, chosen uniformly: the area lights, point lights, the environment
-        self.n_lights = len(self.emitters) + len(self.delta_lights) + self.has_environment
+        # lights a shadow ray may be sent to, numbered in this order: the area lights, delta lights, the environment
+        lights = [*self.emitters, *self.delta_lights,
+                  *(x for x in scene.lights if isinstance(x, (ConstantEnvironment, EnvironmentMap)))]
+        self.n_lights = len(lights)
+        if lights and not any(x.sampling_weight for x in lights):
+            raise SceneError(f"{scene.path}: every emitter's sampling_weight is 0, so no light can be chosen "
+                             "(Mitsuba refuses this too)")
+        self.choice = choose(lights, [x.sampling_weight for x in lights], light_choice, 0.5 * scene.extent())
         self.has_infinite_lights = self.has_environment or bool(self.directionals)   # shadow rays leave the scene
         self.has_lights = self.n_lights > 0
         self.occluders = self._possible_occluders()
@@ -169,19 +179,23 @@ class SceneGeometry:
         n = max(self.n_prims, 1)  # an empty scene still needs a table to gather (masked off) from
         normals, material = np.zeros((n, 3), HOST_FLOAT), np.zeros(n, np.uint32)
         radiance, light_pdf = np.zeros((n, 3), HOST_FLOAT), np.zeros(n, HOST_FLOAT)
+        emitting = np.zeros(n, bool)
         for shapes in self.shape_sets:
             normals[shapes.base:shapes.base + shapes.count] = shapes.normals()
             for s, lo, count in shapes.shape_primitives():
                 material[lo:lo + count] = self.materials.index(s.bsdf)
-        for e in self.emitters:
+        for k, e in enumerate(self.emitters):
             lo, hi = self.prim_range(e)
             radiance[lo:hi] = e.radiance
             area = e.area
-            light_pdf[lo:hi] = 1.0 / (self.n_lights * area) if area > 0 else 0.0
+            light_pdf[lo:hi] = self.choice.pdf_area(k, area) if area > 0 else 0.0
+            emitting[lo:hi] = area > 0
         self.prim_normal = Float(normals.ravel())
         self.prim_material = UInt32(material)
         self.prim_radiance = Float(radiance.ravel())
         self.prim_light_pdf = Float(light_pdf)
+        # emits() reads the light pdf where it is positive exactly on the emitters, else a table of its own
+        self.prim_emits = None if np.array_equal(emitting, light_pdf > 0) else UInt32(emitting.astype(np.uint32))
         frames = np.zeros((max(self.curved_base, 1), 3, 3), HOST_FLOAT)
         for shapes in self.shape_sets:
             if shapes.planar:
@@ -387,6 +401,8 @@ class SceneGeometry:
         if not self.emitters:
             return Bool(False)
         own = self.own(surf.prim, surf.valid)
+        if self.prim_emits is not None:     # a light never chosen (sampling_weight 0, or no power)
+            return own & (dr.gather(UInt32, self.prim_emits, surf.prim, own) > 0)
         return own & (dr.gather(Float, self.prim_light_pdf, surf.prim, own) > 0)
 
     def environment_radiance(self, d: Array3f) -> Array3f:
@@ -402,27 +418,26 @@ class SceneGeometry:
     def environment_pdf(self, d: Array3f):
         """Solid-angle density with which sample_light picks direction d to the environment."""
         if self.envmap is not None:
-            return self.envmap.pdf(d) * (1.0 / self.n_lights)
-        return 1.0 / (self.n_lights * 4.0 * np.pi)
+            return self.envmap.pdf(d) * self.choice.pmf(self.n_lights - 1)
+        return self.choice.pdf_area(self.n_lights - 1, 4.0 * np.pi)
 
     def sample_light(self, u_select: Float, u1: Float, u2: Float, ref: Array3f | None = None) -> LightSample:
-        """A light chosen uniformly, then a point uniform in area on it; for the environment, a direction
+        """A light chosen (self.choice), then a point uniform in area on it; for the environment, a direction
         uniform on the sphere, returned as y (with n = -y, prim = NO_PRIM and pdf_area its solid-angle
         density); for a point light its position (prim = POINT_LIGHT, pdf_area the choice's probability), its
         intensity towards `ref` where it varies with direction (a spot's texture, a projector's image)."""
-        n_lights = self.n_lights
-        index = dr.minimum(UInt32(u_select * n_lights), n_lights - 1)
+        index = self.choice.sample(u_select)
         samples, tabled, first = [], self._emitter_table, 0
         if tabled is not None:                # the first emitters (rectangles and disks): light `index`'s row
             samples.append(LightSample(*tabled.sample(index, u1, u2)))
             first = tabled.count - 1          # samples[k] is light first + k's (for k > 0)
-        for e in self.emitters[first + len(samples):]:
+        for k, e in enumerate(self.emitters[first + len(samples):], first + len(samples)):
             shapes, (lo, _) = self._set_of(e)
             y, n, prim = shapes.sample(e, lo, u1, u2, self)
-            pdf_area = 1.0 / (n_lights * e.area) if e.area > 0 else np.inf    # no area: no power
+            pdf_area = self.choice.pdf_area(k, e.area) if e.area > 0 else np.inf    # no area: no power
             samples.append(LightSample(y, n, vec3(e.radiance), Float(pdf_area), prim))
-        for light in self.delta_lights:
-            samples.append(light.sample(n_lights, self.spots))
+        for k, light in enumerate(self.delta_lights, len(self.emitters)):
+            samples.append(light.sample(self.choice.pmf(k), self.spots))
             if getattr(light, "varies", False) and ref is not None:
                 samples[-1].radiance = samples[-1].radiance * light.profile(ref)
         if self.has_environment:
@@ -441,7 +456,7 @@ class SceneGeometry:
         lights = [e for e in self.emitters if isinstance(e, Rectangle)]
         if len(lights) < 2:
             return None
-        pdf = [1.0 / (self.n_lights * e.area) if e.area > 0 else np.inf for e in lights]
+        pdf = [self.choice.pdf_area(k, e.area) if e.area > 0 else np.inf for k, e in enumerate(lights)]
         return EmitterTable(lights, [self.prim_range(e)[0] for e in lights], pdf)
 
     def describe(self) -> list[str]:
@@ -455,7 +470,7 @@ class SceneGeometry:
             " and an environment map" if self.envmap is not None else "")
         points = f", {len(self.points)} point light(s)" if self.points else ""
         points += f", {len(self.directionals)} directional light(s)" if self.directionals else ""
-        lines.append(f"light sampling: {len(self.emitters)} area light(s){points}{env}")
+        lines.append(f"light sampling: {len(self.emitters)} area light(s){points}{env}, {self.choice.describe()}")
         if self.media is not None:
             lines.append(self.media.describe())
         elif self.scene.media:

@@ -516,6 +516,15 @@ class _Props:
             self.read.add(name)
             return float(default), textures.read_as(texture, textures.FLOAT)
         return float(self.get(name, default, ("float", "integer"))), None
+    def sampling_weight(self) -> float:
+        """An emitter's `sampling_weight` (default 1): how often it is chosen relative to the other lights
+        (tracer.lights.choice); non-negative and finite, as Mitsuba requires."""
+        weight = float(self.get("sampling_weight", 1.0, ("float", "integer")))
+        if not (np.isfinite(weight) and weight >= 0):
+            raise self.ctx.error(self.values["sampling_weight"],
+                                 f"sampling_weight must be finite and non-negative, got {weight:g} (as Mitsuba)")
+        return weight
+
     def fov(self) -> tuple[float, str]:
         """A projection's field of view (degrees) and its axis, as Mitsuba's parse_fov reads them: `fov` and
         `fov_axis`, or `focal_length` on a 35 mm film (36 x 24 mm; Mitsuba's default 50mm, diagonal)."""
@@ -1050,7 +1059,7 @@ def _texture(ctx: _Context, node: Node) -> textures.Texture:
     return textures.from_xml(ctx, _Props(ctx, node, _check_type(ctx, node)), node)
 
 
-def _area_light(ctx: _Context, node: Node) -> tuple[float, float, float]:
+def _area_light(ctx: _Context, node: Node) -> tuple[tuple[float, float, float], float]:
     kind = _check_type(ctx, node)
     if kind != "area":
         raise ctx.error(node, "a shape's emitter must be an 'area' light")
@@ -1058,11 +1067,11 @@ def _area_light(ctx: _Context, node: Node) -> tuple[float, float, float]:
     if props.has("to_world"):
         raise ctx.error(props.values["to_world"], "an area light takes its shape's transform (Mitsuba refuses to_world)")
     value = props.colour("radiance", 1.0)
-    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
+    weight = props.sampling_weight()
     props.finish()
     if np.any(value < 0):
         raise ctx.error(node, f"radiance must be non-negative, got {rgb(value)}")
-    return rgb(value)
+    return rgb(value), weight
 
 
 def _add_shape(ctx: _Context, scene: Scene, node: Node, outer: np.ndarray | None = None, prefix: str = "",
@@ -1084,7 +1093,8 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node, outer: np.ndarray | None
         first = ctx.emitter_shapes[id(emitters[0])]
         raise ctx.error(node, f"the area emitter '{emitters[0].attrib.get('id', '')}' is attached to the shape at "
                               f"{first.file}:{first.line} already; an emitter attaches to one shape (as Mitsuba)")
-    radiance = ctx.attempt(ctx.built_once, emitters[0], lambda n: _area_light(ctx, n)) if emitters else None
+    light = ctx.attempt(ctx.built_once, emitters[0], lambda n: _area_light(ctx, n)) if emitters else None
+    radiance, weight = light if light is not None else (None, 1.0)
     bsdf = ctx.attempt(ctx.bsdf, bsdfs[0]) if bsdfs else None
     if bsdf is not None and kind not in textures.ATTRIBUTE_SHAPES and any(
             isinstance(t, textures.MeshAttribute) for t in bsdf.every_texture()):
@@ -1113,7 +1123,7 @@ def _add_shape(ctx: _Context, scene: Scene, node: Node, outer: np.ndarray | None
     if group is not None and held:
         raise ctx.error(node, f"a medium on a {kind} inside a shapegroup is not supported (the tracer instances "
                               "meshes without media; a sphere, rectangle, disk or cylinder there may hold one)")
-    shape = module.from_xml(ctx, props, ShapeArgs(node, kind, to_world, flip, bsdf, radiance, name))
+    shape = module.from_xml(ctx, props, ShapeArgs(node, kind, to_world, flip, bsdf, radiance, name, weight))
     (group.meshes if group is not None else scene.shapes).append(shape)
     if held:
         ctx.shape_media[len(scene.shapes) - 1] = (held.get("interior"), held.get("exterior"))

@@ -21,12 +21,13 @@ class DirectionalLight:
     direction: np.ndarray
     irradiance: tuple[float, float, float]
     name: str = ""
+    sampling_weight: float = 1.0       # Mitsuba's: relative to the other lights' (lights.choice)
 
-    def sample(self, n_lights: int, spots: bool = False) -> LightSample:
-        """y: the direction towards it; n: the one it shines along; chosen with probability 1 / n_lights (it
-        has no cone, whether or not the scene has spot lights)."""
+    def sample(self, pmf: float, spots: bool = False) -> LightSample:
+        """y: the direction towards it; n: the one it shines along; chosen with probability pmf (it has no
+        cone, whether or not the scene has spot lights)."""
         return LightSample(vec3(-self.direction), vec3(self.direction), vec3(self.irradiance),
-                           Float(1.0 / n_lights), UInt32(DIRECTIONAL_LIGHT))
+                           Float(pmf), UInt32(DIRECTIONAL_LIGHT))
 
 
 def from_xml(ctx, props, node) -> DirectionalLight:
@@ -41,10 +42,11 @@ def from_xml(ctx, props, node) -> DirectionalLight:
             raise ctx.error(node, "a directional light's to_world must be a rotation (no scale or shear)")
         d = linear[:, 2]
     irradiance = props.colour("irradiance", 1.0)
-    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
+    weight = props.sampling_weight()
     props.finish()
     if not np.any(d):
         raise ctx.error(node, "the direction is zero")
     if np.any(irradiance < 0):
         raise ctx.error(node, f"irradiance must be non-negative, got {rgb(irradiance)}")
-    return DirectionalLight(d / np.linalg.norm(d), rgb(irradiance), node.attrib.get("id", f"directional@{node.line}"))
+    return DirectionalLight(d / np.linalg.norm(d), rgb(irradiance), node.attrib.get("id", f"directional@{node.line}"),
+                            weight)

@@ -35,6 +35,7 @@ class EnvironmentMap:
     image: np.ndarray          # (H, W, 3) float32 linear RGB
     to_world: np.ndarray
     name: str = ""
+    sampling_weight: float = 1.0       # Mitsuba's: relative to the other lights' (lights.choice)
 
 
 def from_xml(ctx, props, node) -> EnvironmentMap:
@@ -42,7 +43,8 @@ def from_xml(ctx, props, node) -> EnvironmentMap:
     filename = props.get("filename", None, ("string",))
     scale = props.get("scale", 1.0, ("float", "integer"))
     to_world = props.get("to_world", np.eye(4), ("transform",))
-    props.ignore("sampling_weight", "mis_compensation")    # how often and where it is sampled, not the estimate
+    props.ignore("mis_compensation")    # where it is sampled, not the estimate
+    weight = props.sampling_weight()
     props.finish()
     if filename is None:
         raise ctx.error(node, "envmap needs a <string name=\"filename\"> (an OpenEXR image)")
@@ -64,7 +66,7 @@ def from_xml(ctx, props, node) -> EnvironmentMap:
         radiance = image * np.float32(scale)
     if not np.all(np.isfinite(radiance)):
         raise ctx.error(node, f"scale {scale:g} times the image's largest value {image.max():g} overflows float32")
-    return EnvironmentMap(radiance, to_world, node.attrib.get("id", f"envmap@{node.line}"))
+    return EnvironmentMap(radiance, to_world, node.attrib.get("id", f"envmap@{node.line}"), weight)
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,7 @@ class PointLight:
     image: Bitmap | None = None        # a spot's projected texture, a projector's irradiance image
     frame: np.ndarray | None = None    # to_world's rotation: local directions (+z the axis)
     projection: tuple[float, float] | None = None   # a projector's tan of half its field of view along x, y
+    sampling_weight: float = 1.0       # Mitsuba's: relative to the other lights' (lights.choice)
 
     @property
     def varies(self) -> bool:
@@ -79,11 +80,11 @@ class PointLight:
         c, b = np.radians(cutoff), np.radians(beam)
         return tuple(float(x) for x in axis), float(np.cos(c)), float(np.cos(b)), float(c), float(1.0 / (c - b))
 
-    def sample(self, n_lights: int, spots: bool) -> LightSample:
-        """Its position, chosen with probability 1 / n_lights; the spot's axis rides in n, its cone in `cone`
-        where the scene has spot lights."""
+    def sample(self, pmf: float, spots: bool) -> LightSample:
+        """Its position, chosen with probability pmf; the spot's axis rides in n, its cone in `cone` where
+        the scene has spot lights."""
         axis, *cone = self.cone()
-        return LightSample(vec3(self.position), vec3(axis), vec3(self.intensity), Float(1.0 / n_lights),
+        return LightSample(vec3(self.position), vec3(axis), vec3(self.intensity), Float(pmf),
                            UInt32(POINT_LIGHT), tuple(Float(x) for x in cone) if spots else None)
 
 
@@ -106,7 +107,7 @@ def _projector(ctx, props, node) -> PointLight:
     image = props.colour("irradiance", 1.0, textured=True)
     scale = float(props.get("scale", 1.0, ("float", "integer")))
     fov, fov_axis = props.fov()
-    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
+    weight = props.sampling_weight()
     props.finish()
     frame = _rotation(ctx, node, to_world, "projector")
     if not isinstance(image, (Bitmap, np.ndarray)):
@@ -119,7 +120,7 @@ def _projector(ctx, props, node) -> PointLight:
     tan_x, tan_y = Camera(to_world, fov, fov_axis, width=w, height=h).tan_half_fov()
     return PointLight(to_world[:3, 3].copy(), intensity, node.attrib.get("id", f"projector@{node.line}"),
                       image=image if isinstance(image, Bitmap) else None, frame=frame,
-                      projection=(float(tan_x), float(tan_y)))
+                      projection=(float(tan_x), float(tan_y)), sampling_weight=weight)
 
 
 def _point(ctx, props, node) -> PointLight:
@@ -130,11 +131,12 @@ def _point(ctx, props, node) -> PointLight:
     if position is None:
         position = props.get("to_world", np.eye(4), ("transform",))[:3, 3]
     intensity = props.colour("intensity", 1.0)
-    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
+    weight = props.sampling_weight()
     props.finish()
     if np.any(intensity < 0):
         raise ctx.error(node, f"intensity must be non-negative, got {rgb(intensity)}")
-    return PointLight(np.asarray(position, float), rgb(intensity), node.attrib.get("id", f"point@{node.line}"))
+    return PointLight(np.asarray(position, float), rgb(intensity), node.attrib.get("id", f"point@{node.line}"),
+                      sampling_weight=weight)
 
 
 def _spot(ctx, props, node) -> PointLight:
@@ -144,7 +146,7 @@ def _spot(ctx, props, node) -> PointLight:
     cutoff = float(props.get("cutoff_angle", 20.0, ("float", "integer")))
     beam = float(props.get("beam_width", cutoff * 3.0 / 4.0, ("float", "integer")))
     texture = props.colour("texture", 1.0, textured=True) if props.has("texture") or _texture_child(props) else None
-    props.ignore("sampling_weight")       # changes how often the light is sampled, not the estimate
+    weight = props.sampling_weight()
     props.finish()
     linear = _rotation(ctx, node, to_world, "spot light")
     if texture is not None and not isinstance(texture, Bitmap):
@@ -155,7 +157,7 @@ def _spot(ctx, props, node) -> PointLight:
         raise ctx.error(node, f"intensity must be non-negative, got {rgb(intensity)}")
     axis = linear[:, 2] / np.linalg.norm(linear[:, 2])
     return PointLight(to_world[:3, 3].copy(), rgb(intensity), node.attrib.get("id", f"spot@{node.line}"),
-                      spot=(axis, cutoff, beam), image=texture, frame=linear)
+                      spot=(axis, cutoff, beam), image=texture, frame=linear, sampling_weight=weight)
 
 
 def _texture_child(props) -> bool:

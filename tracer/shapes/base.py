@@ -33,6 +33,7 @@ class ShapeArgs:
     bsdf: BSDF
     radiance: tuple[float, float, float] | None    # an area emitter's
     name: str
+    sampling_weight: float = 1.0                   # an area emitter's (tracer.lights.choice)
 
 
 class ShapeSet:

@@ -49,6 +49,7 @@ class Mesh:
     name: str = ""
     uvs: np.ndarray | None = None        # per-vertex texture coordinates; None: a triangle's (b1, b2)
     attributes: Attributes | None = None   # a PLY file's vertex and face attributes (None: the format has none)
+    sampling_weight: float = 1.0         # an area emitter's (tracer.lights.choice)
 
     @cached_property
     def triangle_areas(self) -> np.ndarray:
@@ -158,7 +159,7 @@ def _place(r: MeshFile, read: tuple | MeshError) -> Mesh | MeshError:
         normals = vertex_normals(vertices, faces)
     else:
         normals = transform.apply_normal(a.to_world, normals) * (-1.0 if a.flip else 1.0)
-    return Mesh(vertices, faces, a.bsdf, normals, a.radiance, a.name, uvs, attributes)
+    return Mesh(vertices, faces, a.bsdf, normals, a.radiance, a.name, uvs, attributes, a.sampling_weight)
 
 
 def attribute_refusal(bsdf: BSDF, attributes: Attributes | None) -> str:

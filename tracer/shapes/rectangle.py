@@ -35,6 +35,7 @@ class Rectangle:
     radiance: tuple[float, float, float] | None = None
     name: str = ""
     disk: bool = False
+    sampling_weight: float = 1.0      # an area emitter's (tracer.lights.choice)
 
     @property
     def center(self) -> np.ndarray:
@@ -70,7 +71,7 @@ def from_xml(ctx, props, a: ShapeArgs) -> Rectangle:
     to_world = a.to_world
     if a.flip:   # the normal is the image of local +z: mirror z, which leaves the shape in place
         to_world = to_world @ np.diag([1.0, 1.0, -1.0, 1.0])
-    return Rectangle(to_world, a.bsdf, a.radiance, a.name, disk=a.kind == "disk")
+    return Rectangle(to_world, a.bsdf, a.radiance, a.name, disk=a.kind == "disk", sampling_weight=a.sampling_weight)
 
 
 def ray_rectangle(o: Array3f, d: Array3f, center, du, dv, n, t_min, t_max) -> tuple[Float, Float, Float]:

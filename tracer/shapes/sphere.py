@@ -29,6 +29,7 @@ class Sphere:
     name: str = ""
     radiance: tuple[float, float, float] | None = None   # an area light on it emits outward
     frame: np.ndarray = field(default_factory=lambda: np.eye(3))   # to_world's rotation: the local axes (columns)
+    sampling_weight: float = 1.0      # an area emitter's (tracer.lights.choice)
 
     @property
     def area(self) -> float:
@@ -52,7 +53,7 @@ def from_xml(ctx, props, a: ShapeArgs) -> Sphere:
     radius *= scale
     if radius <= 0:
         raise ctx.error(a.node, f"sphere radius must be positive, got {radius}")
-    return Sphere(center, radius, a.bsdf, a.name, a.radiance, linear / scale)
+    return Sphere(center, radius, a.bsdf, a.name, a.radiance, linear / scale, a.sampling_weight)
 
 
 def ray_sphere(o: Array3f, d: Array3f, center, r2, t_min, t_max, leaving: Bool) -> Float:
