@@ -2,8 +2,10 @@
 ShapeSet per shape kind (tracer.shapes), the material tables (tracer.materials) and the lights
 (tracer.lights).
 
-Kernels are traced from the scene: every primitive's constants are literals in the kernel, and a shape
-kind, a smooth mesh or a second light the scene lacks adds no instruction.
+Kernels are traced from the scene: a shape kind, a smooth mesh or a second light the scene lacks adds no
+instruction. A scene's numbers (primitive numbers, shapes' positions, lights' radiance) enter the kernels as
+run-time constants, not literals, so that a scene of the same kinds and structure runs another's kernels from
+Dr.Jit's cache.
 """
 from __future__ import annotations
 
@@ -14,7 +16,7 @@ from functools import cached_property
 import drjit as dr
 import numpy as np
 
-from .jit import HOST_FLOAT, NO_PRIM, Array3f, Bool, Float, UInt32, opaque_u32, vec3
+from .jit import HOST_FLOAT, NO_PRIM, Array3f, Bool, Float, UInt32, opaque_f, opaque_u32, opaque_vec3, vec3
 from .lights import ConstantEnvironment, EnvironmentMap, LightSample, select_sample
 from .lights.choice import DEFAULT as LIGHT_CHOICE, choose
 from .lights.envmap import EnvmapKernel
@@ -435,7 +437,7 @@ class SceneGeometry:
             shapes, (lo, _) = self._set_of(e)
             y, n, prim = shapes.sample(e, lo, u1, u2, self)
             pdf_area = self.choice.pdf_area(k, e.area) if e.area > 0 else np.inf    # no area: no power
-            samples.append(LightSample(y, n, vec3(e.radiance), Float(pdf_area), prim))
+            samples.append(LightSample(y, n, opaque_vec3(e.radiance), opaque_f(pdf_area), prim))
         for k, light in enumerate(self.delta_lights, len(self.emitters)):
             samples.append(light.sample(self.choice.pmf(k), self.spots))
             if getattr(light, "varies", False) and ref is not None:

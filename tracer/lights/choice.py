@@ -20,7 +20,7 @@ from __future__ import annotations
 import drjit as dr
 import numpy as np
 
-from ..jit import Float, UInt32
+from ..jit import Float, UInt32, opaque_f, opaque_u32
 from .constant import ConstantEnvironment
 from .directional import DirectionalLight
 from .envmap import LUMINANCE, EnvironmentMap
@@ -59,8 +59,8 @@ class LightChoice:
         return float(self.weights[k]) / (self.total * area)
 
     def sample(self, u: Float) -> UInt32:
-        if self.uniform:
-            return dr.minimum(UInt32(u * self.n), self.n - 1)
+        if self.uniform:     # the count as a run-time constant: scenes of other light counts run the same kernel
+            return dr.minimum(UInt32(u * opaque_f(self.n)), opaque_u32(self.n - 1))
         if self._cdf is None:
             cdf = np.cumsum(self.weights) / self.total
             cdf[np.flatnonzero(self.weights)[-1]:] = 1.0    # u < 1 never reaches the trailing zero weights

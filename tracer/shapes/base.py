@@ -3,19 +3,22 @@
 A scene's primitives are numbered kind after kind in the order of tracer.shapes.KINDS; a set holds the
 shapes of one kind as primitives [base, base + count). The host side gives the rows of the scene's
 per-primitive tables; the kernel side intersects rays, corrects normals and samples points on emitters.
-Kernels are traced from the scene: every method may write the shapes' constants into the kernel as
-literals, and a kind the scene lacks adds no instruction.
+Kernels are traced from the scene: a kind the scene lacks adds no instruction, and a shape tested one by one
+adds its test. The shapes' numbers (their primitives, positions, sizes) enter the kernels as run-time
+constants (jit.opaque_u32, opaque_vec3), not literals: a scene of the same kinds and the same shapes tested one
+by one runs the kernels of another, from Dr.Jit's cache.
 """
 from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import drjit as dr
 import numpy as np
 
-from ..jit import INF, Array3f, Float, UInt32
+from ..jit import INF, Array3f, Bool, Float, UInt32, opaque_u32
 
 if TYPE_CHECKING:
     from ..materials import BSDF
@@ -93,11 +96,34 @@ class ShapeSet:
         raise NotImplementedError
 
     # ---- kernel side -------------------------------------------------------------------------------
+    @cached_property
+    def first(self) -> UInt32:
+        """The set's first primitive (base) as a run-time constant: its primitive k is first + k."""
+        return opaque_u32(self.base)
+
+    @cached_property
+    def size(self) -> UInt32:
+        """The set's primitive count as a run-time constant."""
+        return opaque_u32(self.count)
+
+    def local(self, prim: UInt32) -> UInt32:
+        """prim's index in the set: k for its primitive k, a number not below count for any other (unsigned)."""
+        return prim - self.first
+
+    def owns(self, prim: UInt32) -> Bool:
+        """Whether prim is one of the set's primitives."""
+        return self.local(prim) < self.size
+
     def candidates(self, o: Array3f, d: Array3f, t_min, skip: UInt32, target: UInt32 | None,
                    only: set[int] | None) -> Iterator[tuple[int, Float, Float | None, Float | None]]:
         """Per primitive (of `only`, if given): (index, t, b1, b2) of its hit, t = inf on a miss or for the
-        excluded primitives skip and target; (b1, b2): local coordinates where the kind has them."""
+        excluded primitives skip and target; the index a UInt32 (first + k); (b1, b2): local coordinates where
+        the kind has them."""
         raise NotImplementedError
+
+    def local_ends(self, skip: UInt32, target: UInt32 | None) -> tuple[UInt32, UInt32 | None]:
+        """skip and target as the set's local indices (`local`), for `exclude`."""
+        return self.local(skip), None if target is None else self.local(target)
 
     def normal(self, prim: UInt32, p: Array3f, n: Array3f) -> Array3f:
         """The geometric normal at p where prim is one of the set's (n elsewhere)."""
@@ -120,9 +146,10 @@ class ShapeSet:
         raise NotImplementedError(f"{type(shape).__name__} shapes do not emit")
 
 
-def exclude(t: Float, i: int, skip: UInt32, target: UInt32 | None) -> Float:
-    """t, or inf for primitive i when it is the one a ray leaves (skip) or the light it aims at (target)."""
-    out = skip == i
+def exclude(t: Float, k: int, skip: UInt32, target: UInt32 | None) -> Float:
+    """t, or inf for a set's primitive k when it is the one a ray leaves (skip) or the light it aims at
+    (target); skip and target as the set's local indices (ShapeSet.local)."""
+    out = skip == k
     if target is not None:
-        out |= target == i
+        out |= target == k
     return dr.select(out, INF, t)

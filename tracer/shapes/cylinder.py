@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 import drjit as dr
 import numpy as np
 
-from ..jit import HOST_FLOAT, INF, Array3f, ArrayXf, Bool, Float, UInt32
+from ..jit import HOST_FLOAT, INF, Array3f, ArrayXf, Bool, Float, UInt32, opaque_f, opaque_vec3
 from .base import ShapeArgs, ShapeSet
 from .bvh import BVHKernel, layout, leaf_prim, leaf_rows
 
@@ -78,9 +78,10 @@ def coordinate_system(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             np.array([b, sign + n[1] * n[1] * a, -n[1]]))
 
 
-def constants(m: np.ndarray) -> list[list[float]]:
-    """The rows of a 3 x 4 affine map as the kernel's literals (what `local` and ray_cylinder take)."""
-    return [[float(m[r, c]) for c in range(4)] for r in range(3)]
+def constants(m: np.ndarray) -> list[list[Float]]:
+    """The rows of a 3 x 4 affine map as the kernel's run-time constants (what `local` and ray_cylinder take;
+    the linear part's zeros and ones folded, jit.opaque_f)."""
+    return [[opaque_f(m[r, c], fold=c < 3) for c in range(4)] for r in range(3)]
 
 
 def local(m, p: Array3f, rows: int = 3, offset: bool = True) -> tuple:
@@ -169,17 +170,26 @@ class CylinderSet(ShapeSet):
     def describe(self) -> str:
         return f"{self.count} cylinders (quadratic{', in a BVH' if self.bvh is not None else ''})"
 
+    def _constants(self) -> list[tuple[list, Array3f, Array3f, Float]]:
+        """Per cylinder, as run-time constants: its inverse map's rows, to_world's x and y columns, the
+        normal's sign (the unrolled tests' values, _gathered's in the BVH's scenes); new variables at each
+        call, which callers may update in place."""
+        return [(constants(np.linalg.inv(c.to_world)), opaque_vec3(c.to_world[:3, 0], fold=True),
+                 opaque_vec3(c.to_world[:3, 1], fold=True), opaque_f(-1.0 if c.flipped else 1.0, fold=True))
+                for c in self.shapes]
+
     def candidates(self, o, d, t_min, skip, target, only):
-        for k, c in enumerate(self.shapes if self.bvh is None else ()):
-            i = self.base + k
-            t = ray_cylinder(o, d, constants(np.linalg.inv(c.to_world)), t_min, INF, skip == i)
-            yield i, (t if target is None else dr.select(target == i, INF, t)), None, None
+        skip, target = self.local_ends(skip, target)
+        for k, (m, _, _, _) in enumerate(self._constants() if self.bvh is None else ()):
+            t = ray_cylinder(o, d, m, t_min, INF, skip == k)
+            yield self.first + k, (t if target is None else dr.select(target == k, INF, t)), None, None
 
     def _gathered(self, prim: UInt32) -> tuple[Bool, list, Array3f, Array3f, Float]:
         """(lanes on one of the set's cylinders, its inverse map's rows, to_world's x and y columns, the
         normal's sign), gathered from the table by primitive (the BVH's scenes)."""
-        mine = (prim >= self.base) & (prim < self.base + self.count)
-        x = dr.gather(ArrayXf, self.frames_table, prim - self.base, mine, shape=(19, dr.width(prim)))
+        index = self.local(prim)
+        mine = index < self.size
+        x = dr.gather(ArrayXf, self.frames_table, index, mine, shape=(19, dr.width(prim)))
         m = [[x[4 * r + c] for c in range(4)] for r in range(3)]
         return mine, m, Array3f(x[12], x[13], x[14]), Array3f(x[15], x[16], x[17]), x[18]
 
@@ -187,8 +197,9 @@ class CylinderSet(ShapeSet):
         if self.bvh is not None and self.shapes:
             mine, m, _, _, sign = self._gathered(prim)
             return dr.select(mine, _radial(m, p, sign), n)
-        for k, c in enumerate(self.shapes):
-            n = dr.select(prim == self.base + k, _radial_normal(c, p), n)
+        index = self.local(prim)
+        for k, (m, _, _, sign) in enumerate(self._constants()):
+            n = dr.select(index == k, _radial(m, p, sign), n)
         return n
 
     def uv(self, prim, valid, p, b1, b2, uv):
@@ -198,7 +209,8 @@ class CylinderSet(ShapeSet):
             mine, m, _, _, _ = self._gathered(prim)
             frames = [(mine, m)]
         else:
-            frames = [(prim == self.base + k, constants(np.linalg.inv(c.to_world))) for k, c in enumerate(self.shapes)]
+            index = self.local(prim)
+            frames = [(index == k, m) for k, (m, _, _, _) in enumerate(self._constants())]
         for here, m in frames:
             x, y, z = local(m, p)
             phi = dr.atan2(y, x)
@@ -212,22 +224,16 @@ class CylinderSet(ShapeSet):
             mine, m, wx, wy, _ = self._gathered(prim)
             frames = [(mine, m, wx, wy)]
         else:
-            frames = [(prim == self.base + k, constants(np.linalg.inv(c.to_world)),
-                       Array3f(*(float(w) for w in c.to_world[:3, 0])), Array3f(*(float(w) for w in c.to_world[:3, 1])))
-                      for k, c in enumerate(self.shapes)]
+            index = self.local(prim)
+            frames = [(index == k, m, wx, wy) for k, (m, wx, wy, _) in enumerate(self._constants())]
         for here, m, wx, wy in frames:
             x, y = local(m, p, rows=2)
             dpdu = dr.select(here, Array3f(*(wy[j] * x - wx[j] * y for j in range(3))), dpdu)
         return dpdu
 
 
-def _radial_normal(c: Cylinder, p: Array3f) -> Array3f:
-    """The tube's normal at p: the local radial direction (x, y, 0) taken to world space as a normal, outward
-    unless the cylinder is flipped."""
-    return _radial(constants(np.linalg.inv(c.to_world)), p, -1.0 if c.flipped else 1.0)
-
-
 def _radial(m, p: Array3f, sign) -> Array3f:
-    """_radial_normal's, from the inverse map's rows m (literals or gathered) and the sign."""
+    """The tube's normal at p: the local radial direction (x, y, 0) taken to world space as a normal, outward
+    for sign 1 (-1: a flipped cylinder); from the inverse map's rows m (run-time constants or gathered)."""
     x, y = local(m, p, rows=2)
     return dr.normalize(Array3f(*((x * m[0][k] + y * m[1][k]) * sign for k in range(3))))

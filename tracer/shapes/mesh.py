@@ -19,7 +19,7 @@ from ..ply_attributes import Attributes
 from ..meshes import (MeshError, bounding_box, corner_blocks, cross_rows, length_rows, read_obj, read_ply,
                       vertex_normals)
 from ..serialized import read_serialized
-from ..jit import CORES, HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, opaque_u32, vec3
+from ..jit import CORES, HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, opaque_vec3
 from ..sampling import square_to_uniform_triangle
 from .base import ShapeArgs, ShapeSet, exclude
 from .triangle import ray_triangle
@@ -361,17 +361,23 @@ class MeshSet(ShapeSet):
 
     # ---- kernel side -------------------------------------------------------------------------------
     def candidates(self, o, d, t_min, skip, target, only):
-        for j, v in enumerate(self.tri_vertices if self.bvh is None else ()):
-            i = self.base + j
-            if only is not None and i not in only:
+        skip, target = self.local_ends(skip, target)
+        for j in range(self.count if self.bvh is None else 0):
+            if only is not None and self.base + j not in only:
                 continue
-            t, b1, b2 = ray_triangle(o, d, vec3(v[0]), vec3(v[1] - v[0]), vec3(v[2] - v[0]), t_min, INF)
-            yield i, exclude(t, i, skip, target), b1, b2
+            t, b1, b2 = ray_triangle(o, d, *self._constants(j), t_min, INF)
+            yield self.first + j, exclude(t, j, skip, target), b1, b2
 
-    @cached_property
+    def _constants(self, j: int) -> tuple[Array3f, Array3f, Array3f]:
+        """Triangle j's first corner and two edges as run-time constants (the edges' zeros and ones folded,
+        jit.opaque_f); new variables at each call, which callers may update in place."""
+        v = self.tri_vertices[j]
+        return opaque_vec3(v[0]), opaque_vec3(v[1] - v[0], fold=True), opaque_vec3(v[2] - v[0], fold=True)
+
+    @property
     def _range(self) -> tuple[UInt32, UInt32]:
-        """The set's first primitive and triangle count, as run-time constants (jit.opaque_u32)."""
-        return opaque_u32(self.base), opaque_u32(self.count)
+        """The set's first primitive and triangle count, as run-time constants (ShapeSet.first, size)."""
+        return self.first, self.size
 
     def _triangle(self, prim: UInt32, valid: Bool) -> tuple[UInt32, Bool]:
         base, count = self._range
@@ -419,7 +425,7 @@ class MeshSet(ShapeSet):
         above = dr.gather(Float, cdf, tri)
         u1 = dr.clip((u1 - below) / (above - below), 0.0, 1.0 - 2.0 ** -24)
         b1, b2 = square_to_uniform_triangle(u1, u2)
-        prim = UInt32(lo) + tri
+        prim = self.first + (lo - self.base) + tri
         v = [dr.gather(Array3f, corners, tri * 3 + c) for c in range(3)]
         y = v[0] * (1.0 - b1 - b2) + v[1] * b1 + v[2] * b2
         n = dr.gather(Array3f, geo.prim_normal, prim)

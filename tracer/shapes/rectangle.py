@@ -9,10 +9,11 @@ import drjit as dr
 import numpy as np
 
 from .. import transform
-from ..jit import HOST_FLOAT, INF, Array3f, ArrayXf, Bool, Float, UInt32, vec3
+from ..jit import HOST_FLOAT, INF, Array3f, ArrayXf, Bool, Float, UInt32, opaque_u32, opaque_vec3
 from ..sampling import square_to_uniform_disk_concentric
 from .base import ShapeArgs, ShapeSet, exclude
 from .bvh import BVHKernel, layout, leaf_prim, leaf_rows
+from .bvh_build import aligned_zeros
 from .planar import EDGE_MARGIN
 
 if TYPE_CHECKING:
@@ -187,28 +188,36 @@ class RectangleSet(ShapeSet):
     def describe(self) -> str:
         return f"{self.count} rectangles (ray-plane, eq. 2-4{', in a BVH' if self.bvh is not None else ''})"
 
+    def _constants(self, k: int) -> tuple[Array3f, ...]:
+        """Rectangle k's centre, dual edges du, dv, normal and edges e1, e2 as run-time constants (the
+        directions' zeros and ones folded, jit.opaque_f); new variables at each call, which callers may update
+        in place."""
+        r = self.shapes[k]
+        return (opaque_vec3(r.center), *(opaque_vec3(v, fold=True) for v in (*r.dual_edges, r.normal, *r.edges)))
+
     def candidates(self, o, d, t_min, skip, target, only):
+        skip, target = self.local_ends(skip, target)
         for k in self.unrolled:
-            r, i = self.shapes[k], self.base + k
-            if only is not None and i not in only:
+            if only is not None and self.base + k not in only:
                 continue
-            du, dv = r.dual_edges
-            t, x, y = ray_rectangle(o, d, vec3(r.center), vec3(du), vec3(dv), vec3(r.normal), t_min, INF)
-            if r.disk:
+            center, du, dv, n, _, _ = self._constants(k)
+            t, x, y = ray_rectangle(o, d, center, du, dv, n, t_min, INF)
+            if self.shapes[k].disk:
                 t = dr.select(dr.fma(x, x, y * y) > 1.0, INF, t)
-            yield i, exclude(t, i, skip, target), x, y
+            yield self.first + k, exclude(t, k, skip, target), x, y
 
     def uv(self, prim, valid, p, b1, b2, uv):
         """Mitsuba's: a rectangle's local (x, y) in [-1, 1]^2 mapped to [0, 1]^2; a disk's polar (r, phi / 2 pi)."""
         if not self.shapes:
             return uv
-        mine = (prim >= self.base) & (prim < self.base + self.count)
+        local = self.local(prim)
+        mine = local < self.size
         u, v = dr.fma(b1, 0.5, 0.5), dr.fma(b2, 0.5, 0.5)
-        disks = [self.base + k for k, r in enumerate(self.shapes) if r.disk]
+        disks = [k for k, r in enumerate(self.shapes) if r.disk]
         if disks:
             is_disk = Bool(False)
-            for i in disks:
-                is_disk |= prim == i
+            for k in disks:
+                is_disk |= local == k
             turn = dr.atan2(b2, b1) * (0.5 / dr.pi)
             u = dr.select(is_disk, dr.sqrt(dr.fma(b1, b1, b2 * b2)), u)
             v = dr.select(is_disk, dr.select(turn < 0, turn + 1.0, turn), v)
@@ -216,15 +225,16 @@ class RectangleSet(ShapeSet):
 
     def tangent(self, prim, valid, p, b1, b2, dpdu):
         """Mitsuba's dp/du: a rectangle's local x axis; a disk's radial direction (local (x, y, 0))."""
+        local = self.local(prim)
         for k, r in enumerate(self.shapes):
-            e1, e2 = (vec3(e) for e in r.edges)
-            dpdu = dr.select(prim == self.base + k, dr.fma(e1, b1, e2 * b2) if r.disk else e1, dpdu)
+            *_, e1, e2 = self._constants(k)
+            dpdu = dr.select(local == k, dr.fma(e1, b1, e2 * b2) if r.disk else e1, dpdu)
         return dpdu
 
     def sample(self, r: Rectangle, lo: int, u1: Float, u2: Float, geo) -> tuple[Array3f, Array3f, UInt32]:
-        e1, e2 = r.edges
+        center, _, _, n, e1, e2 = self._constants(lo - self.base)
         a, b = square_to_uniform_disk_concentric(u1, u2) if r.disk else (2.0 * u1 - 1.0, 2.0 * u2 - 1.0)
-        return vec3(r.center) + vec3(e1) * a + vec3(e2) * b, vec3(r.normal), UInt32(lo)
+        return center + e1 * a + e2 * b, n, self.first + (lo - self.base)
 
 
 class EmitterTable:
@@ -234,18 +244,19 @@ class EmitterTable:
     WIDTH = 20
 
     def __init__(self, lights: list[Rectangle], prims: list[int], pdf_area: list[float]):
-        rows = np.zeros((len(lights), self.WIDTH), HOST_FLOAT)
+        rows = aligned_zeros((len(lights), self.WIDTH), HOST_FLOAT)   # read in packets: see aligned_zeros
         for row, r, prim, pdf in zip(rows, lights, prims, pdf_area):
             e1, e2 = r.edges
             row[:15] = np.concatenate([r.center, e1, e2, r.normal, r.radiance])
             row[15], row[16], row[17] = pdf, prim, 1.0 if r.disk else 0.0
         self.count, self.any_disk = len(lights), any(r.disk for r in lights)
+        self.last = opaque_u32(self.count - 1)       # a run-time constant: every count runs the same kernel
         self.rows = Float(rows.ravel())
 
     def sample(self, k: UInt32, u1: Float, u2: Float) -> tuple[Array3f, Array3f, Array3f, Float, UInt32]:
         """Light k's (point, normal, radiance, pdf_area, primitive) for a point uniform on it, as
         RectangleSet.sample places it."""
-        x = dr.gather(ArrayXf, self.rows, dr.minimum(k, self.count - 1), shape=(self.WIDTH, dr.width(k)))
+        x = dr.gather(ArrayXf, self.rows, dr.minimum(k, self.last), shape=(self.WIDTH, dr.width(k)))
         a, b = 2.0 * u1 - 1.0, 2.0 * u2 - 1.0
         if self.any_disk:
             da, db = square_to_uniform_disk_concentric(u1, u2)

@@ -9,7 +9,7 @@ import drjit as dr
 import numpy as np
 
 from .. import transform
-from ..jit import HOST_FLOAT, INF, Array3f, ArrayXf, Bool, Float, UInt32, vec3
+from ..jit import HOST_FLOAT, INF, Array3f, ArrayXf, Bool, Float, UInt32, opaque_f, opaque_vec3
 from ..sampling import square_to_uniform_sphere
 from .base import ShapeArgs, ShapeSet
 from .bvh import BVHKernel, layout, leaf_prim, leaf_rows
@@ -129,22 +129,31 @@ class SphereSet(ShapeSet):
     def describe(self) -> str:
         return f"{self.count} spheres (quadratic, {'in a BVH' if self.bvh is not None else 'brute force'})"
 
+    def _constants(self, k: int) -> tuple[Array3f, Float, Float, list[Array3f]]:
+        """Sphere k's centre, squared radius, radius and frame's axes as run-time constants (the axes' zeros
+        and ones folded, jit.opaque_f); new variables at each call, which callers may update in place."""
+        s = self.shapes[k]
+        return (opaque_vec3(s.center), opaque_f(s.radius * s.radius), opaque_f(s.radius),
+                [opaque_vec3(a, fold=True) for a in s.frame.T])
+
     def candidates(self, o, d, t_min, skip, target, only):
+        skip, target = self.local_ends(skip, target)
         for k, s in enumerate(self.shapes if self.bvh is None else ()):
-            i = self.base + k
-            t = ray_sphere(o, d, vec3(s.center), s.radius * s.radius, t_min, INF, skip == i)
-            yield i, (t if target is None else dr.select(target == i, INF, t)), None, None
+            center, r2, _, _ = self._constants(k)
+            t = ray_sphere(o, d, center, r2, t_min, INF, skip == k)
+            yield self.first + k, (t if target is None else dr.select(target == k, INF, t)), None, None
 
     def normal(self, prim: UInt32, p: Array3f, n: Array3f) -> Array3f:
         if not self.shapes:
             return n
-        is_sphere = (prim >= self.base) & (prim < self.base + self.count)
+        local = self.local(prim)
+        is_sphere = local < self.size
         if self.bvh is not None:
-            center = dr.gather(Array3f, self.centers, prim - self.base, is_sphere)
+            center = dr.gather(Array3f, self.centers, local, is_sphere)
         else:
-            center = vec3(self.shapes[0].center)
-            for k, s in enumerate(self.shapes[1:], 1):
-                center = dr.select(prim == self.base + k, vec3(s.center), center)
+            center = self._constants(0)[0]
+            for k in range(1, self.count):
+                center = dr.select(local == k, self._constants(k)[0], center)
         return dr.select(is_sphere, dr.normalize(p - center), n)  # unit even where p is off the surface
 
     def uv(self, prim, valid, p, b1, b2, uv):
@@ -167,19 +176,21 @@ class SphereSet(ShapeSet):
 
     def _local(self, prim, valid, p) -> tuple[Bool, tuple[Float, Float, Float], list[Array3f]]:
         """(lanes on one of the set's spheres, p in its local frame, the frame's axes in world space)."""
-        is_sphere = (prim >= self.base) & (prim < self.base + self.count)
+        local = self.local(prim)
+        is_sphere = local < self.size
         if self.bvh is not None:
-            k = prim - self.base
-            center = dr.gather(Array3f, self.centers, k, is_sphere)
-            axes = [dr.gather(Array3f, self.axes, k * 3 + j, is_sphere) for j in range(3)]
+            center = dr.gather(Array3f, self.centers, local, is_sphere)
+            axes = [dr.gather(Array3f, self.axes, local * 3 + j, is_sphere) for j in range(3)]
         else:
-            center, axes = vec3(self.shapes[0].center), [vec3(a) for a in self.shapes[0].frame.T]
-            for k, s in enumerate(self.shapes[1:], 1):
-                here = prim == self.base + k
-                center = dr.select(here, vec3(s.center), center)
-                axes = [dr.select(here, vec3(a), b) for a, b in zip(s.frame.T, axes)]
+            center, _, _, axes = self._constants(0)
+            for k in range(1, self.count):
+                here = local == k
+                c, _, _, a = self._constants(k)
+                center = dr.select(here, c, center)
+                axes = [dr.select(here, x, y) for x, y in zip(a, axes)]
         return is_sphere, tuple(dr.dot(p - center, a) for a in axes), axes
 
     def sample(self, s: Sphere, lo: int, u1: Float, u2: Float, geo) -> tuple[Array3f, Array3f, UInt32]:
+        center, _, radius, _ = self._constants(lo - self.base)
         n = square_to_uniform_sphere(u1, u2)
-        return dr.fma(n, s.radius, vec3(s.center)), n, UInt32(lo)
+        return dr.fma(n, radius, center), n, self.first + (lo - self.base)
