@@ -272,6 +272,22 @@ def test_against_interleaves_two_checkouts_and_refuses_a_folder_without_the_trac
         ab.against(lambda _: None, tmp_path, 1)
 
 
+def test_against_names_a_checkout_with_uncommitted_changes_to_its_tracer(tmp_path):
+    """The A/B section labels a tree by its commit, and says so where its tracer differs from that commit."""
+    import subprocess
+    from validation.benchmark import ab
+
+    git = ["git", "-C", str(tmp_path), "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run(git[:3] + ["init", "-q"], check=True)
+    (tmp_path / "tracer").mkdir()
+    (tmp_path / "tracer" / "a.py").write_text("x = 1\n")
+    subprocess.run(git + ["add", "-A"], check=True)
+    subprocess.run(git + ["commit", "-qm", "a"], check=True)
+    assert "uncommitted" not in ab._commit(tmp_path)
+    (tmp_path / "tracer" / "a.py").write_text("x = 2\n")
+    assert ab._commit(tmp_path).endswith(" with uncommitted changes")
+
+
 def test_the_rooms_phases_add_up_to_its_render():
     from validation.benchmark.room_profile import phases
 

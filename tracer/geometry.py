@@ -18,7 +18,7 @@ import numpy as np
 
 from .jit import HOST_FLOAT, NO_PRIM, Array3f, Bool, Float, UInt32, opaque_f, opaque_u32, opaque_vec3, vec3
 from .lights import ConstantEnvironment, EnvironmentMap, LightSample, select_sample
-from .lights.choice import DEFAULT as LIGHT_CHOICE, choose
+from .lights import choice as light_choices
 from .lights.envmap import EnvmapKernel
 from .materials import MaterialTables
 from .media import MediaKernel
@@ -125,10 +125,10 @@ class SceneGeometry:
     """`bvh_threshold`: triangles above which they go into a BVH; `material_kinds`: the material codes the
     kernel carries (materials.DIFFUSE, CONDUCTOR, ...; default: those of the scene's materials);
     `light_choice`: how a shadow ray's light is chosen where the scene gives no sampling_weight
-    (tracer.lights.choice.POLICIES)."""
+    (tracer.lights.choice.POLICIES; default its DEFAULT)."""
 
     def __init__(self, scene: Scene, bvh_threshold: int = BVH_THRESHOLD, material_kinds: set[int] | None = None,
-                 light_choice: str = LIGHT_CHOICE):
+                 light_choice: str | None = None):
         self.scene = scene
         self.batch = False                     # BVH walks over rays in memory (see `batched`)
         self.shape_sets, base = [], 0          # one per kind, in primitive order
@@ -164,7 +164,8 @@ class SceneGeometry:
         if lights and not any(x.sampling_weight for x in lights):
             raise SceneError(f"{scene.path}: every emitter's sampling_weight is 0, so no light can be chosen "
                              "(Mitsuba refuses this too)")
-        self.choice = choose(lights, [x.sampling_weight for x in lights], light_choice, 0.5 * scene.extent())
+        self.choice = light_choices.choose(lights, [x.sampling_weight for x in lights],
+                                           light_choice or light_choices.DEFAULT, 0.5 * scene.extent())
         self.has_infinite_lights = self.has_environment or bool(self.directionals)   # shadow rays leave the scene
         self.has_lights = self.n_lights > 0
         self.occluders = self._possible_occluders()

@@ -9,6 +9,7 @@ exit codes for CI (0 all agree, 1 any disagrees, 3 any inconclusive and none dis
 `validate reference SCENE.xml --max-depth D --size N`: render or load one cached Mitsuba reference;
 `validate faults`: the table of injected faults the statistical test catches;
 `validate improvements SCENE.xml`: filters, adaptive sampling and denoising, each measured;
+`validate light-choice`: uniform against power-proportional choice of lights (reports/light_choice.md);
 `validate snapshot DIR [--against OLD]`: a refactor's images, bit-identical or not."""
 from __future__ import annotations
 
@@ -138,6 +139,12 @@ def _parser() -> argparse.ArgumentParser:
     m.add_argument("--only", action="append", choices=("filters", "adaptive", "denoise"),
                    help="run only this study (repeatable)")
     m.add_argument("--output", "-o", type=Path, help="report folder (default reports/<scene>)")
+    c = sub.add_parser("light-choice", help="write reports/light_choice.md: the error of uniform and of "
+                       "power-proportional light choice on the project's scenes with lights of unequal power, "
+                       "at equal spp and equal time")
+    c.add_argument("--quick", action="store_true", help="32 x 32, 4 seeds, reference at 1024 spp")
+    c.add_argument("--scenes", nargs="+", type=Path, help="default: every project scene with lights of unequal power")
+    c.add_argument("--output", "-o", type=Path, default=Path("reports/light_choice.md"))
     return p
 
 
@@ -381,6 +388,12 @@ def _improvements(args) -> None:
     print(generate(args.scene, out, args.quick, args.only, command))
 
 
+def _light_choice(args) -> None:
+    from .studies.light_choice import run
+
+    print(run(args.scenes, args.output, args.quick, "validate " + " ".join(shlex.quote(a) for a in sys.argv[1:])))
+
+
 def _config(args):
     from .reports.scene_report import Config
 
@@ -510,6 +523,14 @@ def _run(args) -> int:
         from .suites.fuzz import command_line
 
         return command_line(args, "validate " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
+    if args.command == "light-choice":
+        from .verdict.scenefile import ScenePlanError
+
+        for path in args.scenes or []:
+            if not path.is_file():
+                raise ScenePlanError(f"scene file '{path}' not found")
+        _light_choice(args)
+        return 0
     if args.command == "faults":
         from .suites.power import table
 

@@ -24,8 +24,11 @@ JOBS = {"hexagon_room": _tracer("path", scene=ROOM, spp=64, max_depth=5),
 
 
 def _commit(tree: Path) -> str:
+    """The tree's commit, and whether its tracer differs from it (a change not yet committed)."""
     run = subprocess.run(["git", "-C", str(tree), "log", "-1", "--format=%h"], capture_output=True, text=True)
-    return run.stdout.strip() or "unknown"
+    dirty = subprocess.run(["git", "-C", str(tree), "status", "--porcelain", "--", "tracer"], capture_output=True,
+                           text=True).stdout.strip()
+    return (run.stdout.strip() or "unknown") + (" with uncommitted changes" if dirty else "")
 
 
 def against(progress, tree: Path, rounds: int) -> dict:
