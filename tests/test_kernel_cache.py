@@ -47,3 +47,13 @@ def test_a_cornell_box_with_another_light_and_colours_compiles_no_kernel_anew(tm
     geos, (first, second) = _same_kernels([box, variant])
     assert geos[0].occluders == geos[1].occluders
     assert first and first == second
+
+
+def test_a_cornell_box_seen_from_elsewhere_compiles_no_kernel_anew(tmp_path):
+    """The Cornell box from another viewpoint (off its axis, so that no axis of the camera is the world's)
+    through a wider field of view: the camera's pose, field of view and clip planes are run-time constants."""
+    box = PROJECT / "cornell_box.xml"
+    text = box.read_text().replace('value="39.3077"', 'value="45.5"').replace(
+        'origin="0, 0, 4" target="0, 0, 0"', 'origin="0.3, 0.2, 3.8" target="0, 0.1, 0"')
+    geos, (first, second) = _same_kernels([box, write_variant(box, text, tmp_path, "elsewhere")])
+    assert first and first == second

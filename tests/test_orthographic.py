@@ -7,6 +7,7 @@ import pytest
 
 import tracer.camera as camera
 from tracer.cli import main
+from tracer.jit import vec3
 from validation.verdict.protocol import ALPHA
 from validation.verdict.stats import compare_passes
 
@@ -39,7 +40,7 @@ def test_fails_without_the_aspect(monkeypatch):
         aspect = cam.width / cam.height
         m = cam.to_world
         ly = (1.0 - 2.0 * y / cam.height)
-        return o + camera.vec3(m[:3, 1]) * (ly - ly / aspect), d, t_min, t_max
+        return o + vec3(m[:3, 1]) * (ly - ly / aspect), d, t_min, t_max
 
     ortho = camera._orthographic
     monkeypatch.setattr(camera, "_orthographic", square)
