@@ -57,3 +57,12 @@ def test_a_cornell_box_seen_from_elsewhere_compiles_no_kernel_anew(tmp_path):
         'origin="0, 0, 4" target="0, 0, 0"', 'origin="0.3, 0.2, 3.8" target="0, 0.1, 0"')
     geos, (first, second) = _same_kernels([box, write_variant(box, text, tmp_path, "elsewhere")])
     assert first and first == second
+
+
+def test_another_sample_count_compiles_no_kernel_anew():
+    """The samples per pixel are a run-time constant (the pixel of sample k is k // spp)."""
+    scene = tracer.load_scene(PROJECT / "cornell_box.xml", width=16, height=16)
+    geo = SceneGeometry(scene)
+    first, second = (kernel_hashes(lambda spp=spp: render(scene, "path", spp=spp, max_depth=4, geometry=geo))
+                     for spp in (2, 3))
+    assert first and first == second

@@ -63,7 +63,7 @@ def render_aovs(scene: Scene, spp: int = DEFAULT_SPP, seed: int | None = None,
         for first, n in chunks(pixel_count(cam) * spp, PATH_CHUNK, False, "aov"):
             sample = dr.arange(UInt32, n) + opaque_u32(first)
             rng = seeded_rng(sample, seed_state(seed, AOV_STREAM))
-            o, d, t_min, t_max, x, y = primary_rays(cam, sample // spp, rng)
+            o, d, t_min, t_max, x, y = primary_rays(cam, sample // opaque_u32(spp), rng)
             albedo, normal = first_diffuse_features(geo, o, d, t_min, t_max, rng)
             albedo_film.put(x, y, albedo)
             normal_film.put(x, y, normal)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import drjit as dr
 import numpy as np
 
-from .jit import Array3f, Float, PCG32, UInt32, opaque_f, opaque_vec3
+from .jit import Array3f, Float, PCG32, UInt32, opaque_f, opaque_u32, opaque_vec3
 from .sampling import square_to_uniform_disk_concentric
 from .scene import Camera
 
@@ -21,7 +21,7 @@ def primary_rays(camera: Camera, pixel: UInt32, rng: PCG32):
     Returns (origin, direction, t_min, t_max, x, y): t_min/t_max are the near and far clip planes,
     (x, y) the image position in pixels, where the film splats the sample.
     """
-    columns, border = camera.sampled_size[0], camera.border
+    columns, border = opaque_u32(camera.sampled_size[0]), camera.border   # any resolution: the same kernel
     x = Float(pixel % columns) + rng.next_float32() - border
     y = Float(pixel // columns) + rng.next_float32() - border
     fx, fy = x + camera.crop_x, y + camera.crop_y        # on the whole film

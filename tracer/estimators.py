@@ -67,7 +67,7 @@ class PathEstimator:
     def render_pass(self, geo, scene, film: Film, spp: int, seed: int, chunk: int, progress: bool) -> int:
         """`spp` samples per pixel into `film`, in launches of `chunk` paths; returns the rays traced."""
         sampler = lambda sample, pixel, state: self.samples(geo, scene, sample, pixel, state)  # noqa: E731
-        return trace_pass(film, sampler, pixel_count(scene.camera) * spp, lambda sample: sample // spp,
+        return trace_pass(film, sampler, pixel_count(scene.camera) * spp, lambda sample: sample // opaque_u32(spp),
                           seed_state(seed), progress, "path", chunk=chunk)
 
 
@@ -121,7 +121,7 @@ class BranchingEstimator:
                                                    progress, "report")):
             sample = dr.arange(UInt32, n) + opaque_u32(start)
             rng = seeded_rng(sample, seed_state(seed, index))
-            o, d, t_min, t_max, x, y = primary_rays(scene.camera, sample // spp, rng)
+            o, d, t_min, t_max, x, y = primary_rays(scene.camera, sample // opaque_u32(spp), rng)
             dr.eval(x, y)
             radiance = dr.zeros(Float, n * 3)
             wave = Wavefront(o, d, t_min, t_max, Array3f(1.0), dr.arange(UInt32, n), UInt32(NO_PRIM), Bool(True))

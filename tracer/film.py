@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from .jit import Array3f, Bool, Float, Int32, UInt32
+from .jit import Array3f, Bool, Float, Int32, UInt32, opaque_u32
 
 FILTERS = ("box", "gaussian", "tent")
 DEVELOP_PIXELS = 1 << 15   # pixels developed at once (whole rows, at least one)
@@ -64,9 +64,9 @@ class Film:
     def put(self, x: Float, y: Float, value: Array3f, active: Bool | bool = True) -> None:
         """Adds samples at film positions (x, y) in pixels (0 .. width, 0 .. height)."""
         if self.rfilter.kind == "box":
-            px = dr.minimum(UInt32(dr.floor(x)), self.width - 1)
-            py = dr.minimum(UInt32(dr.floor(y)), self.height - 1)
-            self._add(py * self.size[0] + px, value, Float(1.0), active)
+            px = dr.minimum(UInt32(dr.floor(x)), opaque_u32(self.width - 1))   # the size out of the kernel
+            py = dr.minimum(UInt32(dr.floor(y)), opaque_u32(self.height - 1))
+            self._add(py * opaque_u32(self.size[0]) + px, value, Float(1.0), active)
             return
         r = self.rfilter.radius
         fx, fy = x - 0.5 + self.border, y - 0.5 + self.border     # position relative to pixel centres
