@@ -380,18 +380,22 @@ def _interrupted(e: BaseException | None) -> bool:
     return False
 
 
+def _command_line() -> str:
+    """This run's command, as a report quotes it."""
+    return "validate " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+
+
 def _improvements(args) -> None:
     from .studies.improvements import generate
 
     out = args.output or (Path("out/reports") if args.quick else Path("reports")) / args.scene.stem
-    command = "validate " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-    print(generate(args.scene, out, args.quick, args.only, command))
+    print(generate(args.scene, out, args.quick, args.only, _command_line()))
 
 
 def _light_choice(args) -> None:
     from .studies.light_choice import run
 
-    print(run(args.scenes, args.output, args.quick, "validate " + " ".join(shlex.quote(a) for a in sys.argv[1:])))
+    print(run(args.scenes, args.output, args.quick, _command_line()))
 
 
 def _config(args):
@@ -409,8 +413,7 @@ def _report(args) -> None:
     from .reports.scene_report import generate
 
     out = args.output or (Path("out/reports") if args.quick else Path("reports")) / args.scene.stem
-    command = "validate " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-    print(generate(args.scene, out, _config(args), command))
+    print(generate(args.scene, out, _config(args), _command_line()))
 
 
 def _reference(args) -> None:
@@ -522,7 +525,7 @@ def _run(args) -> int:
     if args.command == "fuzz":
         from .suites.fuzz import command_line
 
-        return command_line(args, "validate " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
+        return command_line(args, _command_line())
     if args.command == "light-choice":
         from .verdict.scenefile import ScenePlanError
 
