@@ -516,6 +516,7 @@ class _Props:
             self.read.add(name)
             return float(default), textures.read_as(texture, textures.FLOAT)
         return float(self.get(name, default, ("float", "integer"))), None
+
     def sampling_weight(self) -> float:
         """An emitter's `sampling_weight` (default 1): how often it is chosen relative to the other lights
         (tracer.lights.choice); non-negative and finite, as Mitsuba requires."""
