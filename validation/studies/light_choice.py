@@ -2,14 +2,14 @@
 their half-and-half mixture (tracer.lights.choice), measured by the error of the path estimator's images on the project's scenes that
 have lights of unequal power.
 
-Both policies are unbiased, so an image's mean squared error against the converged image is its variance:
-per scene, the relative MSE (the mean over pixels and channels of (x - r)^2 / (r^2 + 0.01)) of SEEDS images
-at SPP samples per pixel against a reference rendered by the tracer at REF_SPP (its own variance, 1/REF_SPP
-of a one-sample image's, is common to both policies and below 1% of what is measured). Equal samples: the
-ratio of the two relative MSEs. Equal time: the ratio of relative MSE times CPU seconds per sample (the
-process's CPU time of a render at TIME_SPP, compilation excluded, the median of TIME_RUNS runs, the policies
-interleaved): for an unbiased estimator MSE falls as 1 / spp, so this is the ratio of the MSEs the policies
-reach in equal time.
+Both policies are unbiased, so an image's mean squared error against the converged image is its variance: per
+scene, the relative MSE (validation.verdict.metrics.relative_mse: the mean over pixels and channels of
+(x - r)^2 / (r^2 + 0.01)) of SEEDS images at SPP samples per pixel against a reference rendered by the tracer
+at REF_SPP (its own variance, 1/REF_SPP of a one-sample image's, is common to both policies and below 1% of
+what is measured). Equal samples: the ratio of the two relative MSEs. Equal time: the ratio of relative MSE
+times CPU seconds per sample (the process's CPU time of a render at TIME_SPP, compilation excluded, the median
+of TIME_RUNS runs, the policies interleaved): for an unbiased estimator MSE falls as 1 / spp, so this is the
+ratio of the MSEs the policies reach in equal time.
 
     validate light-choice [--quick] [--scenes SCENE.xml ...] [--output reports/light_choice.md]
 """
@@ -24,12 +24,13 @@ import numpy as np
 
 from tracer.lights.choice import DEFAULT
 
+from ..verdict.metrics import relative_mse
+
 ROOT = Path(__file__).resolve().parents[2]
 POLICIES = ("uniform", "power", "mixed")
 OTHERS = POLICIES[1:]
 SIZE, SPP, SEEDS, REF_SPP = 64, 16, 8, 4096
 TIME_SPP, TIME_RUNS = 256, 5
-EPS = 0.01
 
 
 def scenes() -> list[Path]:
@@ -64,10 +65,6 @@ class Row:
         return self.equal_spp(policy) * self.cpu[policy] / self.cpu["uniform"]
 
 
-def rel_mse(image: np.ndarray, ref: np.ndarray) -> float:
-    return float(np.mean((image - ref) ** 2 / (ref ** 2 + EPS)))
-
-
 def measure(path: Path, size: int, spp: int, seeds: int, ref_spp: int, time_runs: int) -> Row:
     import tracer
     from tracer.geometry import SceneGeometry
@@ -75,7 +72,7 @@ def measure(path: Path, size: int, spp: int, seeds: int, ref_spp: int, time_runs
     scene = tracer.load_scene(path, width=size, height=size)
     geos = {p: SceneGeometry(scene, light_choice=p) for p in POLICIES}
     ref = tracer.render(scene, "path", spp=ref_spp, seed=10_000, geometry=geos["uniform"]).image
-    errors = {p: [rel_mse(tracer.render(scene, "path", spp=spp, seed=seed, geometry=geos[p]).image, ref)
+    errors = {p: [relative_mse(tracer.render(scene, "path", spp=spp, seed=seed, geometry=geos[p]).image, ref)
                   for seed in range(seeds)] for p in POLICIES}
     cpu = {p: [] for p in POLICIES}
     for run in range(time_runs):                          # the kernels are compiled: render time alone

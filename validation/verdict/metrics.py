@@ -38,8 +38,13 @@ def rmse(image: np.ndarray, ref: Reference) -> float:
 
 def rel_mse(image: np.ndarray, ref: Reference) -> float:
     """Mean of ((x - r)^2 - v) / (r^2 + REL_EPS) over pixels and channels."""
-    r = ref.mean.astype(np.float64)
-    return float(np.mean(((image - r) ** 2 - ref.var) / (r * r + REL_EPS)))
+    return relative_mse(image, ref.mean, ref.var)
+
+
+def relative_mse(image: np.ndarray, mean: np.ndarray, var: np.ndarray | float = 0.0) -> float:
+    """rel_mse's against a reference image `mean` of variance `var` (0: one taken as exact)."""
+    r = mean.astype(np.float64)
+    return float(np.mean(((image - r) ** 2 - var) / (r * r + REL_EPS)))
 
 
 def ssim(image: np.ndarray, ref: Reference) -> float:
