@@ -161,6 +161,11 @@ class Scene:
         return next((x for x in self.lights if isinstance(x, EnvironmentMap)), None)
 
     @property
+    def has_environment(self) -> bool:
+        """Whether light arrives from all directions at infinity (a `constant` or an `envmap` emitter)."""
+        return self.environment is not None or self.envmap is not None
+
+    @property
     def emitters(self) -> list:
         """The emitting shapes (area lights), in primitive order."""
         return [s for s in in_primitive_order(self.shapes) if s.radiance is not None]
@@ -218,7 +223,7 @@ class Scene:
             what = (f"participating media ({', '.join(sorted({m.kind for m in self.media}))})" if self.media else
                     "the volpath integrator (whose shadow rays cross null surfaces)")
             out.append(f"{self.path}: the report estimator does not render {what}; use --estimator path")
-        if estimator == "report" and (self.environment is not None or self.envmap is not None):
+        if estimator == "report" and self.has_environment:
             plugin = "constant" if self.environment is not None else "envmap"
             out.append(f"{self.path}: the report estimator does not render the '{plugin}' emitter (an environment); "
                        "use --estimator path")

@@ -96,16 +96,19 @@ def profile_tracer(geometry) -> dict:
 
 @contextmanager
 def every_bounce_batched():
-    """Within: the path tracer walks every bounce's rays batched (tracer.integrators.path.TAIL_LANES 0; a
-    render's last few paths otherwise go on in one kernel, their walks inside it), so that every walk is
-    timed or recorded."""
+    """Within: the path tracer goes bounce by bounce (tracer.geometry.ALWAYS_BOUNCE_BY_BOUNCE: also without
+    an environment, where a render goes in one kernel) and walks every bounce's rays batched
+    (tracer.integrators.path.TAIL_LANES 0; a render's last few paths otherwise go on in one kernel, their
+    walks inside it), so that every walk is timed or recorded."""
+    import tracer.geometry as geometry
     import tracer.integrators.path as path
 
-    tail, path.TAIL_LANES = path.TAIL_LANES, 0
+    saved = path.TAIL_LANES, geometry.ALWAYS_BOUNCE_BY_BOUNCE
+    path.TAIL_LANES, geometry.ALWAYS_BOUNCE_BY_BOUNCE = 0, True
     try:
         yield
     finally:
-        path.TAIL_LANES = tail
+        path.TAIL_LANES, geometry.ALWAYS_BOUNCE_BY_BOUNCE = saved
 
 
 def profile_render(render_once) -> dict:
