@@ -112,7 +112,7 @@ def test_paths_bounce_by_bounce_are_the_paths_in_one_kernel(monkeypatch, tail):
     used = []
     monkeypatch.setattr(path_integrator, "_wavefront", lambda *a: used.append(a) or one_kernel)
     PathEstimator(5).samples(geo, scene, UInt32(0), UInt32(0), 1)
-    assert not used                    # a BVH but no environment: one kernel (geometry.goes_bounce_by_bounce)
+    assert not used                    # a BVH but no envmap: one kernel (geometry.goes_bounce_by_bounce)
     monkeypatch.setattr(geometry_module, "ALWAYS_BOUNCE_BY_BOUNCE", True)
     PathEstimator(5).samples(geo, scene, UInt32(0), UInt32(0), 1)
     assert bool(used) == BATCHED_WALKS                # bounce by bounce (on the CPU)
@@ -126,7 +126,7 @@ def test_the_plan_counts_a_wavefronts_memory(tmp_path, monkeypatch):
     assert meshes.triangle_count > BVH_THRESHOLD >= room.triangle_count
     estimator = PathEstimator(5)
     assert make_plan(room, 16, estimator, 0).launch_bytes == 64 * 64 * 16 * PATH_LANE_BYTES
-    assert make_plan(meshes, 16, estimator, 0).launch_bytes == 64 * 64 * 16 * PATH_LANE_BYTES   # no environment
+    assert make_plan(meshes, 16, estimator, 0).launch_bytes == 64 * 64 * 16 * PATH_LANE_BYTES   # no envmap
     monkeypatch.setattr(geometry_module, "ALWAYS_BOUNCE_BY_BOUNCE", True)
     lane_bytes = WAVEFRONT_LANE_BYTES if BATCHED_WALKS else PATH_LANE_BYTES
     assert make_plan(meshes, 16, estimator, 0).launch_bytes == 64 * 64 * 16 * lane_bytes
@@ -217,7 +217,7 @@ def test_unbounded_paths_bounce_by_bounce_are_the_paths_in_one_kernel(tmp_path, 
 
     scene = tracer.load_scene(write_mesh_scene(tmp_path, 3000), width=12, height=12)
     geo = SceneGeometry(scene)
-    monkeypatch.setattr(geometry_module, "ALWAYS_BOUNCE_BY_BOUNCE", True)   # it has no environment
+    monkeypatch.setattr(geometry_module, "ALWAYS_BOUNCE_BY_BOUNCE", True)   # it has no envmap
     assert geo.bounce_by_bounce == BATCHED_WALKS
     threads = dr.thread_count()
     dr.set_thread_count(1)        # the film adds samples atomically: in any order with two threads
@@ -230,15 +230,16 @@ def test_unbounded_paths_bounce_by_bounce_are_the_paths_in_one_kernel(tmp_path, 
     np.testing.assert_array_equal(bounces.image, one_kernel.image)
 
 
-def test_scenes_with_a_mesh_bvh_under_an_environment_go_bounce_by_bounce():
+def test_scenes_with_a_mesh_bvh_under_an_envmap_go_bounce_by_bounce():
     """The rest go in one kernel (geometry.goes_bounce_by_bounce); describe() says which."""
     room = SceneGeometry(tracer.load_scene(SCENES / "hexagon_room.xml"))
     box = SceneGeometry(tracer.load_scene(SCENES / "cornell_box.xml"), bvh_threshold=0)
-    sky = SceneGeometry(tracer.load_scene(SCENES / "constant_environment.xml"), bvh_threshold=0)
-    assert box.meshes.bvh is not None and sky.meshes.bvh is not None and sky.has_environment
-    assert not room.bounce_by_bounce and not box.bounce_by_bounce
+    constant = SceneGeometry(tracer.load_scene(SCENES / "constant_environment.xml"), bvh_threshold=0)
+    sky = SceneGeometry(tracer.load_scene(SCENES / "environment_map.xml"), bvh_threshold=0)
+    assert all(g.meshes.bvh is not None for g in (box, constant, sky)) and sky.envmap is not None
+    assert not room.bounce_by_bounce and not box.bounce_by_bounce and not constant.bounce_by_bounce
     assert sky.bounce_by_bounce == BATCHED_WALKS
-    for geo in (room, box, sky):
+    for geo in (room, box, constant, sky):
         assert any("bounce by bounce" in line for line in geo.describe()) == geo.bounce_by_bounce
 
 
@@ -268,7 +269,7 @@ def test_a_new_mesh_scene_of_the_same_structure_compiles_no_kernel_anew(tmp_path
     assert geos[0].meshes.count != geos[1].meshes.count
     assert geos[0].meshes.bvh.stack_size == geos[1].meshes.bvh.stack_size
     monkeypatch.setattr(path_integrator, "TAIL_LANES", tail)   # 0: every bounce batched; else all in one kernel
-    monkeypatch.setattr(geometry_module, "ALWAYS_BOUNCE_BY_BOUNCE", tail == 0)   # (the scenes have no environment)
+    monkeypatch.setattr(geometry_module, "ALWAYS_BOUNCE_BY_BOUNCE", tail == 0)   # (the scenes have no envmap)
     runs = [lambda s=s, g=g: render(s, "path", spp=2, max_depth=4, geometry=g) for s, g in zip(scenes, geos)]
     for run in runs:
         run()

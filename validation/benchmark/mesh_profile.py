@@ -97,7 +97,7 @@ def profile_tracer(geometry) -> dict:
 @contextmanager
 def every_bounce_batched():
     """Within: the path tracer goes bounce by bounce (tracer.geometry.ALWAYS_BOUNCE_BY_BOUNCE: also without
-    an environment, where a render goes in one kernel) and walks every bounce's rays batched
+    an envmap, where a render goes in one kernel) and walks every bounce's rays batched
     (tracer.integrators.path.TAIL_LANES 0; a render's last few paths otherwise go on in one kernel, their
     walks inside it), so that every walk is timed or recorded."""
     import tracer.geometry as geometry
