@@ -17,13 +17,16 @@ demo: $(STAMP)
 	$(VENV)/bin/tracer render mitsuba_scenes/hexagon_room.xml --output out/hexagon_room_path.exr \
 		--estimator path --spp 64
 
+# pytest, naming the test it was in if a signal killed it (tests/conftest.py records each test as it starts)
+PYTEST = rm -f .pytest_cache/last-started; $(PYTHON) -m pytest -q $(1) || { rc=$$?; [ $$rc -le 128 ] || \
+	echo "pytest died of signal $$((rc - 128)) in $$(cat .pytest_cache/last-started 2>/dev/null)" >&2; exit $$rc; }
+
 test: $(STAMP)
-	@rm -f .pytest_cache/last-started
-	$(PYTHON) -m pytest -q || { rc=$$?; [ $$rc -le 128 ] || echo "pytest died of signal $$((rc - 128)) in $$(cat .pytest_cache/last-started 2>/dev/null)" >&2; exit $$rc; }
+	@$(call PYTEST,)
 
 # The edit loop: everything but the tests marked slow (statistical comparisons against Mitsuba, the browser, imports).
 test-fast: $(STAMP)
-	$(PYTHON) -m pytest -q -m "not slow"
+	@$(call PYTEST,-m "not slow")
 
 # The report page's viewer in headless Chromium alone (it also runs in `make test`).
 test-browser: $(STAMP)

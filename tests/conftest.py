@@ -74,6 +74,6 @@ LAST_STARTED = ROOT / ".pytest_cache" / "last-started"
 
 def pytest_runtest_logstart(nodeid: str, location) -> None:
     """Each test's id, written as it starts: where the process dies of a signal (a crash in compiled code),
-    `make test` names the test it died in (pytest itself prints nothing more)."""
+    `make test` and `make test-fast` name the test it died in (pytest itself prints nothing more)."""
     LAST_STARTED.parent.mkdir(exist_ok=True)
     LAST_STARTED.write_text(nodeid + "\n")

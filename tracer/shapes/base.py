@@ -106,6 +106,10 @@ class ShapeSet:
         """The set's primitive count as a run-time constant."""
         return opaque_u32(self.count)
 
+    def prim(self, k: int) -> UInt32:
+        """The primitive number of the set's primitive k (an int), from the run-time constant `first`."""
+        return self.first + k
+
     def local(self, prim: UInt32) -> UInt32:
         """prim's index in the set: k for its primitive k, a number not below count for any other (unsigned)."""
         return prim - self.first

@@ -35,6 +35,11 @@ class Cylinder:
         local = np.array([[x, y, z, 1.0] for x in (-1, 1) for y in (-1, 1) for z in (0, 1)])
         return (local @ self.to_world.T)[:, :3]
 
+    @property
+    def to_local(self) -> np.ndarray:
+        """The inverse of to_world: world space to the local frame of the tube."""
+        return np.linalg.inv(self.to_world)
+
     def extent_points(self) -> list[np.ndarray]:
         return [self.corners]
 
@@ -128,7 +133,7 @@ class CylinderBVH(BVHKernel):
         tables = layout(np.stack([lo, hi, hi], 1))
         self._set_nodes(tables)
         rows = leaf_rows(tables.order, prim_base, 16)
-        m = np.array([np.linalg.inv(c.to_world)[:3].ravel() for c in cylinders])[tables.order]
+        m = np.array([c.to_local[:3].ravel() for c in cylinders])[tables.order]
         rows[:, [0, 1, 2, 4, 5, 6, 7, 8, 9, 10, 11, 12]] = m
         self.prims = Float(rows.ravel())
 
@@ -151,7 +156,7 @@ class CylinderSet(ShapeSet):
         if self.uses_bvh(self.count):
             self.bvh = CylinderBVH(self.shapes, base)
             # per cylinder: the inverse map's 12 values, to_world's first two columns, the normal's sign
-            table = [[*np.linalg.inv(c.to_world)[:3].ravel(), *c.to_world[:3, 0], *c.to_world[:3, 1],
+            table = [[*c.to_local[:3].ravel(), *c.to_world[:3, 0], *c.to_world[:3, 1],
                       -1.0 if c.flipped else 1.0] for c in self.shapes]
             self.frames_table = Float(np.array(table, HOST_FLOAT).ravel())
 
@@ -174,7 +179,7 @@ class CylinderSet(ShapeSet):
         """Per cylinder, as run-time constants: its inverse map's rows, to_world's x and y columns, the
         normal's sign (the unrolled tests' values, _gathered's in the BVH's scenes); new variables at each
         call, which callers may update in place."""
-        return [(constants(np.linalg.inv(c.to_world)), opaque_vec3(c.to_world[:3, 0], fold=True),
+        return [(constants(c.to_local), opaque_vec3(c.to_world[:3, 0], fold=True),
                  opaque_vec3(c.to_world[:3, 1], fold=True), opaque_f(-1.0 if c.flipped else 1.0, fold=True))
                 for c in self.shapes]
 

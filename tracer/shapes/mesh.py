@@ -318,7 +318,7 @@ class MeshSet(ShapeSet):
             blocks.append(block.ravel())
             layout[name] = (offset, channels, per_vertex)
             offset += block.size
-        return AttributeTable(Float(np.concatenate(blocks)), layout, *self._range)
+        return AttributeTable(Float(np.concatenate(blocks)), layout, self.first, self.size)
 
     def tangent(self, prim, valid, p, b1, b2, dpdu):
         if not self.count:
@@ -376,15 +376,9 @@ class MeshSet(ShapeSet):
         v = self.tri_vertices[j]
         return vec3(v[0]), vec3(v[1] - v[0]), vec3(v[2] - v[0])
 
-    @property
-    def _range(self) -> tuple[UInt32, UInt32]:
-        """The set's first primitive and triangle count, as run-time constants (ShapeSet.first, size)."""
-        return self.first, self.size
-
     def _triangle(self, prim: UInt32, valid: Bool) -> tuple[UInt32, Bool]:
-        base, count = self._range
-        tri = prim - base
-        return tri, valid & (prim >= base) & (tri < count)
+        tri = prim - self.first
+        return tri, valid & (prim >= self.first) & (tri < self.size)
 
     def shading_normal(self, prim: UInt32, b1: Float, b2: Float, n: Array3f) -> Array3f:
         """The normal interpolated from the corners where prim is a triangle of a smooth mesh (n elsewhere)."""
@@ -427,7 +421,7 @@ class MeshSet(ShapeSet):
         above = dr.gather(Float, cdf, tri)
         u1 = dr.clip((u1 - below) / (above - below), 0.0, 1.0 - 2.0 ** -24)
         b1, b2 = square_to_uniform_triangle(u1, u2)
-        prim = self.first + (lo - self.base) + tri
+        prim = self.prim(lo - self.base) + tri
         v = [dr.gather(Array3f, corners, tri * 3 + c) for c in range(3)]
         y = v[0] * (1.0 - b1 - b2) + v[1] * b1 + v[2] * b2
         n = dr.gather(Array3f, geo.prim_normal, prim)

@@ -234,7 +234,7 @@ class RectangleSet(ShapeSet):
     def sample(self, r: Rectangle, lo: int, u1: Float, u2: Float, geo) -> tuple[Array3f, Array3f, UInt32]:
         center, _, _, n, e1, e2 = self._constants(lo - self.base)
         a, b = square_to_uniform_disk_concentric(u1, u2) if r.disk else (2.0 * u1 - 1.0, 2.0 * u2 - 1.0)
-        return center + e1 * a + e2 * b, n, self.first + (lo - self.base)
+        return center + e1 * a + e2 * b, n, self.prim(lo - self.base)
 
 
 class EmitterTable:

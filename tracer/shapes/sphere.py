@@ -193,4 +193,4 @@ class SphereSet(ShapeSet):
     def sample(self, s: Sphere, lo: int, u1: Float, u2: Float, geo) -> tuple[Array3f, Array3f, UInt32]:
         center, _, radius, _ = self._constants(lo - self.base)
         n = square_to_uniform_sphere(u1, u2)
-        return dr.fma(n, radius, center), n, self.first + (lo - self.base)
+        return dr.fma(n, radius, center), n, self.prim(lo - self.base)
