@@ -83,9 +83,12 @@ def uses_bvh(scene: Scene) -> bool:
             or CylinderSet.uses_bvh(len(scene.of_kind(CylinderSet.kind))) or scene.instanced_triangles[1] > 0)
 
 
-def goes_bounce_by_bounce(has_mesh_bvh: bool, has_envmap: bool) -> bool:
+ALWAYS_BOUNCE_BY_BOUNCE = False   # diagnostics and tests: every scene with a mesh BVH goes bounce by bounce
+
+
+def goes_bounce_by_bounce(scene: Scene, has_mesh_bvh: bool) -> bool:
     """Whether the path tracer goes bounce by bounce (SceneGeometry.bounce_by_bounce), for a scene with or
-    without a mesh BVH and an `envmap` emitter: also before its geometry is built (rendering.make_plan). Only
+    without a mesh BVH (also before its geometry is built: rendering.make_plan) and an `envmap` emitter. Only
     a mesh's BVH: the small BVHs of rectangles, disks and spheres are walked faster inside the one kernel
     (path, CPU seconds of a render, 128 x 128, 16 spp, the fastest of 3 interleaved, machine loaded: 40 spheres
     0.10 s in one kernel against 0.23 s bounce by bounce, the 16 x 16-light Cornell box's 261 rectangles 0.53 s
@@ -95,10 +98,7 @@ def goes_bounce_by_bounce(has_mesh_bvh: bool, has_envmap: bool) -> bool:
     (shape_ply_bunny), 1.28 (medium_homogeneous_sss), 1.18 (matpreview), but 0.88 (bsdf_conductor_gold); on
     emitter_spot_no_texture (two spot lights and a `constant` emitter) 0.62, and on the project's mesh
     benchmark (the Cornell box around 250,000 triangles, area light, 64 spp) 0.88."""
-    return has_mesh_bvh and (has_envmap or ALWAYS_BOUNCE_BY_BOUNCE) and BATCHED_WALKS
-
-
-ALWAYS_BOUNCE_BY_BOUNCE = False   # diagnostics and tests: every scene with a mesh BVH goes bounce by bounce
+    return has_mesh_bvh and (scene.envmap is not None or ALWAYS_BOUNCE_BY_BOUNCE) and BATCHED_WALKS
 
 
 _recorded: list | None = None    # see recorded_queries
@@ -279,7 +279,7 @@ class SceneGeometry:
     @property
     def bounce_by_bounce(self) -> bool:
         """Whether the path tracer goes bounce by bounce, its mesh BVH walks batched (integrators.path)."""
-        return goes_bounce_by_bounce(self.meshes.bvh is not None or bool(self.instanced), self.envmap is not None)
+        return goes_bounce_by_bounce(self.scene, self.meshes.bvh is not None or bool(self.instanced))
 
     @contextmanager
     def batched(self):

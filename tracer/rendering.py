@@ -170,8 +170,8 @@ def make_plan(scene: Scene, spp: int, estimator: PathEstimator | BranchingEstima
     elif geometry is not None:
         extra = {"wavefront": geometry.bounce_by_bounce}
     else:
-        extra = {"wavefront": goes_bounce_by_bounce(MeshSet.uses_bvh(scene.triangle_count)
-                                                    or scene.instanced_triangles[1] > 0, scene.envmap is not None)}
+        extra = {"wavefront": goes_bounce_by_bounce(scene, MeshSet.uses_bvh(scene.triangle_count)
+                                                    or scene.instanced_triangles[1] > 0)}
     return plan_render(width, height, spp, estimator.name, estimator.max_depth, border=border,
                        float_bytes=8 if PRECISION == "double" else 4, images=images, scene_bytes=scene_bytes(scene),
                        max_pass_samples=width * height if one_spp_passes else None, **extra)

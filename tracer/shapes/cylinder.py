@@ -187,7 +187,7 @@ class CylinderSet(ShapeSet):
         skip, target = self.local_ends(skip, target)
         for k, (m, _, _, _) in enumerate(self._constants() if self.bvh is None else ()):
             t = ray_cylinder(o, d, m, t_min, INF, skip == k)
-            yield self.first + k, (t if target is None else dr.select(target == k, INF, t)), None, None
+            yield self.prim(k), (t if target is None else dr.select(target == k, INF, t)), None, None
 
     def _gathered(self, prim: UInt32) -> tuple[Bool, list, Array3f, Array3f, Float]:
         """(lanes on one of the set's cylinders, its inverse map's rows, to_world's x and y columns, the

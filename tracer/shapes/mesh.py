@@ -366,7 +366,7 @@ class MeshSet(ShapeSet):
             if only is not None and self.base + j not in only:
                 continue
             t, b1, b2 = ray_triangle(o, d, *self._constants(j), t_min, INF)
-            yield self.first + j, exclude(t, j, skip, target), b1, b2
+            yield self.prim(j), exclude(t, j, skip, target), b1, b2
 
     def _constants(self, j: int) -> tuple[Array3f, Array3f, Array3f]:
         """Triangle j's first corner and two edges, as literals: read from memory (jit.opaque_vec3), the Cornell
@@ -377,7 +377,7 @@ class MeshSet(ShapeSet):
         return vec3(v[0]), vec3(v[1] - v[0]), vec3(v[2] - v[0])
 
     def _triangle(self, prim: UInt32, valid: Bool) -> tuple[UInt32, Bool]:
-        tri = prim - self.first
+        tri = self.local(prim)
         return tri, valid & (prim >= self.first) & (tri < self.size)
 
     def shading_normal(self, prim: UInt32, b1: Float, b2: Float, n: Array3f) -> Array3f:

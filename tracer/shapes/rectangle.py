@@ -204,7 +204,7 @@ class RectangleSet(ShapeSet):
             t, x, y = ray_rectangle(o, d, center, du, dv, n, t_min, INF)
             if self.shapes[k].disk:
                 t = dr.select(dr.fma(x, x, y * y) > 1.0, INF, t)
-            yield self.first + k, exclude(t, k, skip, target), x, y
+            yield self.prim(k), exclude(t, k, skip, target), x, y
 
     def uv(self, prim, valid, p, b1, b2, uv):
         """Mitsuba's: a rectangle's local (x, y) in [-1, 1]^2 mapped to [0, 1]^2; a disk's polar (r, phi / 2 pi)."""

@@ -141,7 +141,7 @@ class SphereSet(ShapeSet):
         for k, s in enumerate(self.shapes if self.bvh is None else ()):
             center, r2, _, _ = self._constants(k)
             t = ray_sphere(o, d, center, r2, t_min, INF, skip == k)
-            yield self.first + k, (t if target is None else dr.select(target == k, INF, t)), None, None
+            yield self.prim(k), (t if target is None else dr.select(target == k, INF, t)), None, None
 
     def normal(self, prim: UInt32, p: Array3f, n: Array3f) -> Array3f:
         if not self.shapes:
