@@ -124,3 +124,23 @@ def test_mitsuba_weights_a_delta_sample_by_the_mixture(mi):
     assert mi.has_flag(bs.sampled_type, mi.BSDFFlags.DeltaReflection)
     mixture = (W * SPECULAR + (1 - W) * DIFFUSE * cos / np.pi) / (W + (1 - W) * cos / np.pi)
     assert weight[0] == pytest.approx(mixture, rel=1e-5) and abs(weight[0] - SPECULAR) > 0.1
+
+
+@pytest.mark.parametrize("scene", [SCENE, "textured_parameters.xml", FURNACE])
+def test_kinds_by_indirect_call_are_the_kinds_selected(scene, monkeypatch, request):
+    """A blend's kinds go through dr.switch (materials.dispatch): the same image, bit for bit, as every kind
+    run on every lane and selected."""
+    import drjit as dr
+
+    from tracer.materials import dispatch
+    from tracer.rendering import render
+    threads = dr.thread_count()
+    dr.set_thread_count(1)        # the film adds samples atomically: in any order with two threads
+    request.addfinalizer(lambda: dr.set_thread_count(threads))
+    loaded = tracer.load_scene(SCENES / scene if isinstance(scene, str) else scene, width=16, height=12)
+    assert dispatch.by_indirect_call(tracer.geometry.SceneGeometry(loaded).materials)
+    called = render(loaded, "path", spp=4, seed=3, max_depth=5)
+    monkeypatch.setattr(dispatch, "by_indirect_call", lambda tables: False)
+    selected = render(loaded, "path", spp=4, seed=3, max_depth=5)
+    assert called.image.any()
+    np.testing.assert_array_equal(called.image, selected.image)
