@@ -214,6 +214,24 @@ def test_the_command_line_runs_numpy_with_one_blas_thread_unless_told(given, use
 RENDER = "from tracer import cli; raise SystemExit(cli.main(['render', {!r}, '--size', '4x4', '-o', {!r}]))"
 
 
+@pytest.mark.parametrize("scene, code", [(ROOM, 0), (Path("no_such_scene.xml"), 1)])
+def test_the_command_ends_its_process_with_every_line_and_file_delivered(tmp_path, scene, code):
+    """`tracer` (cli.run) skips the interpreter's teardown: its lines, exit code and images still arrive."""
+    out = tmp_path / "r.exr"
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"} | {"PYTHONPATH": str(ROOT)}
+    run = subprocess.run([sys.executable, "-m", "tracer.cli", "render", str(scene), "--size", "8x6", "-o", str(out)],
+                         capture_output=True, text=True, timeout=120, env=env, cwd=ROOT)   # pipes: block-buffered
+    assert run.returncode == code, run.stderr
+    if code:
+        assert run.stderr.startswith("tracer: error:") and not out.exists()
+        return
+    assert run.stdout.rstrip().endswith(f"wrote {out}, {out.with_suffix('.png')}"), run.stdout
+    from tracer.imageio import read_exr_rgb
+    image = read_exr_rgb(out)
+    assert image.shape == (6, 8, 3) and image.sum() > 0
+    assert out.with_suffix(".png").stat().st_size > 0
+
+
 LIB = Path("/usr/lib/x86_64-linux-gnu")
 
 

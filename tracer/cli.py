@@ -150,6 +150,20 @@ def main(argv: list[str] | None = None) -> int:
         return BUG_EXIT
 
 
+def run() -> None:
+    """The `tracer` command: main(), then the process ends at once, without the interpreter's and Dr.Jit's
+    teardown (0.12-0.16 s after a 64 x 48 render, against 0.02 s). Nothing is left to it: main() has written
+    and closed its files, Dr.Jit writes a kernel to its cache when it compiles it, and the standard streams
+    are flushed here."""
+    code = main()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (BrokenPipeError, ValueError):   # the reader left, or the stream is closed: nothing to deliver
+            pass
+    os._exit(code)
+
+
 def _one_line(e: BaseException) -> str:
     """A user error's message with long values clipped; an OSError's as its file and reason."""
     if isinstance(e, OSError) and not isinstance(e, UserError) and e.strerror:
@@ -406,4 +420,4 @@ def _info(args) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run()

@@ -18,7 +18,6 @@ from .camera import pixel_count, primary_rays
 from .errors import SettingsError
 from .film import Film
 from .integrators.path import Strategies, path_radiance
-from .integrators.volpath import volpath_radiance
 from .integrators.report import Wavefront, trace_level
 from .jit import NO_PRIM, Array3f, Bool, Float, UInt32, opaque_u32
 from .launch import chunks, seed_state, trace_pass
@@ -57,6 +56,7 @@ class PathEstimator:
         rng = seeded_rng(sample, state)
         o, d, t_min, t_max, x, y = primary_rays(scene.camera, pixel, rng)
         if scene.volumetric:
+            from .integrators.volpath import volpath_radiance    # here: its import takes 0.02 s
             L, count = volpath_radiance(geo, o, d, t_min, t_max, rng, opaque_u32(depth), opaque_u32(scene.rr_depth),
                                         scene.spectral_mis)
         else:

@@ -8,7 +8,6 @@ program's `open` would.
 from __future__ import annotations
 
 import os
-import secrets
 from collections.abc import Callable
 from pathlib import Path
 
@@ -44,7 +43,7 @@ def _temporary(path: Path) -> Path:
     """A new empty file beside `path`, created with the umask's mode (O_EXCL: never an existing one)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     for _ in range(100):
-        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp{path.suffix}")
+        tmp = path.with_name(f".{path.name}.{os.urandom(4).hex()}.tmp{path.suffix}")
         try:
             os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
             return tmp
