@@ -10,7 +10,8 @@ import tracer.geometry as geometry
 import drjit as dr
 
 from tracer.shapes.bvh import LEAF_BIT, WIDTH, BVHKernel, layout, wide_children
-from tracer.shapes.bvh_build import BINS, LEAF_SIZE, TRAVERSAL_COST, Tree, aligned, build, depth_first, sah_cost
+from tracer.jit import aligned
+from tracer.shapes.bvh_build import BINS, LEAF_SIZE, TRAVERSAL_COST, Tree, build, depth_first, sah_cost
 from tracer.jit import NO_PRIM, Array3f, ArrayXu, Bool, Float, UInt32
 
 from .conftest import SCENES, kernel_hashes

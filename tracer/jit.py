@@ -121,3 +121,31 @@ def segment_of(first, count: int):
     mark = dr.zeros(kind, count)
     dr.scatter(mark, 1, first, dr.arange(kind, dr.width(first)) > 0)
     return dr.prefix_reduce(dr.ReduceOp.Add, mark, exclusive=False)
+
+
+def host_array(kind: type, a: np.ndarray, dtype=None):
+    """`a`, flattened (in `dtype`, if given), as a host array of type `kind`, in memory starting on a cache
+    line: Dr.Jit wraps a NumPy array's memory as it is, and a kernel reading it compiles anew for each
+    alignment it finds. Copied only where needed."""
+    a = np.asarray(a)
+    if (dtype is not None and a.dtype != dtype) or not a.flags.c_contiguous or a.ctypes.data % 64:
+        a = aligned(a, dtype)
+    return kind(a.ravel())
+
+
+def aligned(a: np.ndarray, dtype=None) -> np.ndarray:
+    """A copy of `a` (flattened; in `dtype`, if given) starting on a 64-byte boundary (as aligned_zeros)."""
+    out = aligned_zeros(a.shape, dtype or a.dtype)
+    out[...] = a
+    return out.ravel()
+
+
+def aligned_zeros(shape: int | tuple[int, ...], dtype, alignment: int = 64) -> np.ndarray:
+    """A C-contiguous array of zeros starting on an `alignment`-byte boundary. Dr.Jit wraps a NumPy
+    array's memory as it is, and gathers from memory it finds unaligned as separate loads instead of
+    packet loads."""
+    dtype = np.dtype(dtype)
+    size = int(np.prod(shape)) * dtype.itemsize
+    buffer = np.zeros(size + alignment, np.uint8)   # calloc: pages zeroed as first touched
+    start = -buffer.ctypes.data % alignment
+    return buffer[start:start + size].view(dtype).reshape(shape)

@@ -44,10 +44,10 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float as _Float32, Float64 as _Float64, UInt32 as _UInt32
 
-from .bvh_build import Tree, aligned_zeros, build, depth_first, host_array, select_max, select_min
+from .bvh_build import Tree, build, depth_first, select_max, select_min
 from .triangle import ray_triangle
 from ..jit import BACKEND, HOST_FLOAT, INF, PRECISION, Array3f, ArrayXf, ArrayXu, Bool, Float, UInt32, UInt64, \
-    opaque_u32
+    aligned_zeros, host_array, opaque_u32
 
 GRID = 0xFFFF          # largest grid coordinate of a node's box corner
 LEAF_BIT = 1 << 31     # marks a leaf's link word

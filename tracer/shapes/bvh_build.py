@@ -151,16 +151,6 @@ def corners(vertices: np.ndarray, faces: np.ndarray | None) -> tuple[np.ndarray,
     return vertices, faces
 
 
-def host_array(kind: type, a: np.ndarray, dtype=None):
-    """`a`, flattened (in `dtype`, if given), as a host array of type `kind`, in memory starting on a cache
-    line: Dr.Jit wraps a NumPy array's memory as it is, and a kernel reading it compiles anew for each
-    alignment it finds. Copied only where needed."""
-    a = np.asarray(a)
-    if (dtype is not None and a.dtype != dtype) or not a.flags.c_contiguous or a.ctypes.data % 64:
-        a = aligned(a, dtype)
-    return kind(a.ravel())
-
-
 def sah_cost(tree: Tree) -> float:
     """The tree's expected cost of a walk, in triangle tests, of a ray through its root box, by the surface
     area heuristic (MacDonald and Booth 1990; pbrt-v4's BVH cost): TRAVERSAL_COST per inner node and a
@@ -193,21 +183,3 @@ def select_min(a, b):
 def select_max(a, b):
     """max(a, b) for operands that are never NaN, as one instruction."""
     return dr.select(a > b, a, b)
-
-
-def aligned(a: np.ndarray, dtype=None) -> np.ndarray:
-    """A copy of `a` (flattened; in `dtype`, if given) starting on a 64-byte boundary (as aligned_zeros)."""
-    out = aligned_zeros(a.shape, dtype or a.dtype)
-    out[...] = a
-    return out.ravel()
-
-
-def aligned_zeros(shape: int | tuple[int, ...], dtype, alignment: int = 64) -> np.ndarray:
-    """A C-contiguous array of zeros starting on an `alignment`-byte boundary. Dr.Jit wraps a NumPy
-    array's memory as it is, and gathers from memory it finds unaligned as separate loads instead of
-    packet loads."""
-    dtype = np.dtype(dtype)
-    size = int(np.prod(shape)) * dtype.itemsize
-    buffer = np.zeros(size + alignment, np.uint8)   # calloc: pages zeroed as first touched
-    start = -buffer.ctypes.data % alignment
-    return buffer[start:start + size].view(dtype).reshape(shape)

@@ -13,13 +13,12 @@ import numpy as np
 
 from .. import transform
 from .bvh import BVHKernel, triangle_frames
-from .bvh_build import aligned_zeros
 from .bvh_cache import cached_layout
 from ..ply_attributes import Attributes
 from ..meshes import (MeshError, bounding_box, corner_blocks, cross_rows, length_rows, read_obj, read_ply,
                       vertex_normals)
 from ..serialized import read_serialized
-from ..jit import CORES, HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, vec3
+from ..jit import CORES, HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, aligned_zeros, vec3
 from ..sampling import square_to_uniform_triangle
 from .base import ShapeArgs, ShapeSet, exclude
 from .triangle import ray_triangle

@@ -9,11 +9,10 @@ import drjit as dr
 import numpy as np
 
 from .. import transform
-from ..jit import HOST_FLOAT, INF, Array3f, ArrayXf, Bool, Float, UInt32, opaque_u32, opaque_vec3
+from ..jit import HOST_FLOAT, INF, Array3f, ArrayXf, Bool, Float, UInt32, aligned_zeros, opaque_u32, opaque_vec3
 from ..sampling import square_to_uniform_disk_concentric
 from .base import ShapeArgs, ShapeSet, exclude
 from .bvh import BVHKernel, layout, leaf_prim, leaf_rows
-from .bvh_build import aligned_zeros
 from .planar import EDGE_MARGIN
 
 if TYPE_CHECKING:
