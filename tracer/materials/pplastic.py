@@ -75,8 +75,7 @@ def table(bsdfs: list[BSDF]) -> np.ndarray:
 
 
 def params(tables, surf, active: Bool) -> PPlasticParams:
-    values, fields = tables.table(NAME)
-    r = [dr.gather(Float, values, surf.material * fields + k, active) for k in range(FIELDS)]
+    r = tables.row(NAME, surf.material, active, FIELDS)
     return PPlasticParams(mf.from_row(tables, NAME, r, surf, active), r[4], r[5], Array3f(*r[6:9]),
                           tables.reflectance(surf, active))
 

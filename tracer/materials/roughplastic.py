@@ -83,13 +83,13 @@ def table(bsdfs: list[BSDF]) -> np.ndarray:
 
 
 def params(tables, surf, active: Bool) -> RoughPlasticParams:
-    values, fields = tables.table(NAME)
-    head = [dr.gather(Float, values, surf.material * fields + k, active) for k in range(FIELDS)]
+    values, stride = tables.table(NAME)
+    head = tables.row(NAME, surf.material, active, FIELDS)
     nonlinear = {b.nonlinear for b in tables.bsdfs if b.kind == NAME}
     return RoughPlasticParams(mf.from_row(tables, NAME, head), head[4], Array3f(*head[8:11]),
                               tables.reflectance(surf, active),
                               nonlinear.pop() if len(nonlinear) == 1 else head[7] > 0.5, head[5], head[6],
-                              values, surf.material, fields, FIELDS)
+                              values, surf.material, stride, FIELDS)
 
 
 @lru_cache(maxsize=64)
