@@ -142,7 +142,7 @@ def test_mis_check_fails_where_choice_and_density_disagree():
     """Power-proportional choice read by MIS as uniform, and the reverse: both caught."""
     scene = tracer.load_scene(ROOT / "tests" / "data" / "light_behind_wall.xml", width=4, height=4)
     powered, uniform = (SceneGeometry(scene, light_choice=p) for p in ("power", "uniform"))
-    powered.prim_light_pdf = uniform.prim_light_pdf
+    powered.prim_emission = uniform.prim_emission     # the same radiance, the uniform choice's pdfs
     assert any("differ" in line for line in mis_problems(powered))
     uniform.choice = SceneGeometry(scene, light_choice="power").choice    # samples by power, pdfs as uniform
     uniform.__dict__.pop("_emitter_table", None)

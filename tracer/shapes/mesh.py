@@ -423,7 +423,7 @@ class MeshSet(ShapeSet):
         prim = self.prim(lo - self.base) + tri
         v = [dr.gather(Array3f, corners, tri * 3 + c) for c in range(3)]
         y = v[0] * (1.0 - b1 - b2) + v[1] * b1 + v[2] * b2
-        n = dr.gather(Array3f, geo.prim_normal, prim)
+        n = geo.shading_row(prim)[0]
         if m.normals is not None:
             cn = [dr.gather(Array3f, self.corner_normals, (prim - self.base) * 3 + c) for c in range(3)]
             n = dr.normalize(cn[0] * (1.0 - b1 - b2) + cn[1] * b1 + cn[2] * b2)
