@@ -16,8 +16,8 @@ from functools import cached_property
 import drjit as dr
 import numpy as np
 
-from .jit import HOST_FLOAT, NO_PRIM, Array3f, ArrayXf, Bool, Float, UInt32, host_array, opaque_f, opaque_u32, \
-    opaque_vec3, vec3
+from .jit import HOST_FLOAT, NO_PRIM, Array3f, Bool, Float, UInt32, gather_row, gather_vec3, opaque_f, opaque_u32, \
+    opaque_vec3, row_table, vec3
 from .lights import ConstantEnvironment, EnvironmentMap, LightSample, select_sample
 from .lights import choice as light_choices
 from .lights.envmap import EnvmapKernel
@@ -187,9 +187,8 @@ class SceneGeometry:
             for b in scene.bsdfs)
 
     # ---- host-side tables, gathered by primitive index -------------------------------------------
-    # Rows of four values (prim_shading: normal and material; prim_emission: radiance and the light pdf;
-    # prim_frame: origin, e1 and e2 each and a pad), in tables that start on a cache line: a lane gathers a
-    # row in one packet load, not value by value.
+    # Rows a lane gathers in one packet load (jit.row_table): prim_shading, the normal and material;
+    # prim_emission, the radiance and light pdf; prim_frame, each of origin, e1 and e2.
     def _build_tables(self) -> None:
         n = max(self.n_prims, 1)  # an empty scene still needs a table to gather (masked off) from
         normals, material = np.zeros((n, 3), HOST_FLOAT), np.zeros(n, np.uint32)
@@ -207,15 +206,15 @@ class SceneGeometry:
             emitting[lo:hi] = area > 0
         if len(self.materials.bsdfs) > 1 << 24:
             raise SceneError(f"{self.scene.path}: more than 2^24 materials (a primitive's is read as a float)")
-        self.prim_shading = host_array(Float, np.column_stack([normals, material]), HOST_FLOAT)
-        self.prim_emission = host_array(Float, np.column_stack([radiance, light_pdf]), HOST_FLOAT)
+        self.prim_shading = row_table(np.column_stack([normals, material]))
+        self.prim_emission = row_table(np.column_stack([radiance, light_pdf]))
         # emits() reads the light pdf where it is positive exactly on the emitters, else a table of its own
         self.prim_emits = None if np.array_equal(emitting, light_pdf > 0) else UInt32(emitting.astype(np.uint32))
         frames = np.zeros((max(self.curved_base, 1), 3, 3), HOST_FLOAT)
         for shapes in self.shape_sets:
             if shapes.planar:
                 frames[shapes.base:shapes.base + shapes.count] = shapes.frames()
-        self.prim_frame = host_array(Float, np.pad(frames, ((0, 0), (0, 0), (0, 1))), HOST_FLOAT)
+        self.prim_frame = row_table(frames)
         if self.materials.textured:
             self.meshes.build_uvs()
         if self.materials.oriented:
@@ -338,7 +337,7 @@ class SceneGeometry:
             return p
         curved_base, mesh_base = self._planar_ranges
         planar = prim < curved_base
-        origin, e1, e2 = (Array3f(*_row(self.prim_frame, prim * 3 + k, planar)[:3]) for k in range(3))
+        origin, e1, e2 = (gather_vec3(self.prim_frame, prim * 3 + k, planar) for k in range(3))
         inset = inset_point(origin, e1, e2, b1, b2, prim < mesh_base)
         return dr.select(planar, inset, p)
 
@@ -370,7 +369,7 @@ class SceneGeometry:
 
     def shading_row(self, prim: UInt32, active: Bool = True) -> tuple[Array3f, UInt32]:
         """A primitive's geometric normal (a curved shape's is its own, ShapeSet.normal) and material."""
-        x = _row(self.prim_shading, prim, active)
+        x = gather_row(self.prim_shading, 4, prim, active)
         return Array3f(x[0], x[1], x[2]), UInt32(x[3])
 
     def surface(self, hit: Hit) -> Surface:
@@ -409,7 +408,7 @@ class SceneGeometry:
         le = Array3f(0.0)
         if self.emitters:
             own = self.own(surf.prim, surf.valid)
-            le = Array3f(*_row(self.prim_emission, surf.prim, own)[:3])
+            le = Array3f(*gather_row(self.prim_emission, 4, surf.prim, own)[:3])
             le = dr.select(own & (dr.dot(surf.ns, wi) > 0), le, Array3f(0.0))
         if self.has_environment:
             le = dr.select(surf.valid, le, self.environment_radiance(-wi))
@@ -422,7 +421,7 @@ class SceneGeometry:
         own = self.own(surf.prim, surf.valid)
         if self.prim_emits is not None:     # a light never chosen (sampling_weight 0, or no power)
             return own & (dr.gather(UInt32, self.prim_emits, surf.prim, own) > 0)
-        return own & (_row(self.prim_emission, surf.prim, own)[3] > 0)
+        return own & (gather_row(self.prim_emission, 4, surf.prim, own)[3] > 0)
 
     def environment_radiance(self, d: Array3f) -> Array3f:
         """Radiance arriving from the environment along -d (d: the direction leaving the scene)."""
@@ -432,7 +431,7 @@ class SceneGeometry:
 
     def light_pdf_area(self, surf: Surface) -> Float:
         """Area density with which sample_light picks this point (0 off the lights)."""
-        return _row(self.prim_emission, surf.prim, self.own(surf.prim, surf.valid))[3]
+        return gather_row(self.prim_emission, 4, surf.prim, self.own(surf.prim, surf.valid))[3]
 
     def environment_pdf(self, d: Array3f):
         """Solid-angle density with which sample_light picks direction d to the environment."""
@@ -499,8 +498,3 @@ class SceneGeometry:
             lines.append("path tracing: bounce by bounce, each bounce's rays walked through the BVH by persistent "
                          "lanes")
         return lines
-
-
-def _row(table: Float, index: UInt32, active: Bool) -> list[Float]:
-    """Row `index` of a table of rows of four values, in one packet load."""
-    return list(dr.gather(ArrayXf, table, index, active, shape=(4, dr.width(index))))

@@ -149,3 +149,33 @@ def aligned_zeros(shape: int | tuple[int, ...], dtype, alignment: int = 64) -> n
     buffer = np.zeros(size + alignment, np.uint8)   # calloc: pages zeroed as first touched
     start = -buffer.ctypes.data % alignment
     return buffer[start:start + size].view(dtype).reshape(shape)
+
+
+def packet_size(count: int) -> int:
+    """The power of two at or above count: the values one packet load gathers (Dr.Jit gathers packets of a
+    power of two values, from memory on a cache line; anything else value by value, which on this project's
+    CPUs costs far more)."""
+    return 1 << max(count - 1, 0).bit_length()
+
+
+def row_table(rows: np.ndarray):
+    """Rows (..., k) as a Float table of rows of packet_size(k) values, zero-padded, on a cache line, so that
+    gather_row reads a row in one packet load."""
+    rows = np.asarray(rows)
+    k = rows.shape[-1]
+    out = aligned_zeros((rows.size // k, packet_size(k)), HOST_FLOAT)
+    out[:, :k] = rows.reshape(-1, k)
+    return host_array(Float, out)
+
+
+def gather_row(table, width: int, index, active=True, count: int | None = None) -> list:
+    """The first `count` values (default all `width`) of row `index` of a row_table of rows `width` apart."""
+    size = packet_size(width if count is None else count)
+    x = dr.gather(ArrayXf, table, index * (width // size) if size < width else index, active,
+                  shape=(size, dr.width(index)))
+    return list(x)[:width if count is None else count]
+
+
+def gather_vec3(table, index, active=True):
+    """Row `index` of a row_table of 3-vectors, as an Array3f."""
+    return Array3f(*gather_row(table, 4, index, active, 3))

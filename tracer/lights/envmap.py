@@ -18,7 +18,7 @@ import drjit as dr
 import numpy as np
 
 from ..imageio import ImageError, read_exr_rgb
-from ..jit import Array3f, Float, UInt32
+from ..jit import Array3f, Float, UInt32, gather_vec3, row_table
 from ..sampling import square_to_uniform_sphere
 
 PLUGINS = {"envmap": ("filename", "bitmap", "scale", "to_world", "mis_compensation", "sampling_weight")}
@@ -102,7 +102,7 @@ class EnvmapKernel:
 
     def __init__(self, env):
         self.h, self.w = env.image.shape[:2]
-        self.texels = Float(np.asarray(env.image, np.float32).ravel())
+        self.texels = row_table(np.asarray(env.image, np.float32))
         linear = env.to_world[:3, :3]
         self.to_world, self.to_local = linear, np.linalg.inv(linear)
         dist = distribution(env.image)
@@ -120,7 +120,7 @@ class EnvmapKernel:
         return u - dr.floor(u), dr.clip(dr.safe_acos(v.y) / dr.pi, 0.0, 1.0)
 
     def _texel(self, i: UInt32, j: UInt32) -> Array3f:
-        return dr.gather(Array3f, self.texels, j * self.w + i)
+        return gather_vec3(self.texels, j * self.w + i)
 
     def radiance(self, d: Array3f) -> Array3f:
         u, t = self._uv(self._local(d))

@@ -1,14 +1,13 @@
 """The scene's materials as the kernels see them: per-material columns every kind shares (kind, two-sidedness,
 reflectance and its texture) and one table per kind (its module's `table`), gathered by material index. A
-table a scene's materials do not need is not built, and its code is not traced. Each row of a kind's table, and
-each reflectance (RGB and a pad), is padded to a power of two in a table that starts on a cache line, so that
-a lane gathers it in one packet load instead of one gather per value."""
+table a scene's materials do not need is not built, and its code is not traced. A lane gathers a row of a kind's
+table, and a reflectance, in one packet load (jit.row_table)."""
 from __future__ import annotations
 
 import drjit as dr
 import numpy as np
 
-from ..jit import HOST_FLOAT, Array2f, Array3f, ArrayXf, Bool, Float, UInt32, host_array
+from ..jit import Array2f, Array3f, Bool, Float, UInt32, gather_row, gather_vec3, packet_size, row_table
 from .bsdf import BSDF
 from .dispatch import KIND_CODE, KINDS
 from .textures import MeshAttribute, TextureTables
@@ -38,8 +37,7 @@ class MaterialTables:
         # frame about the normal gives the same image
         self.oriented = any(not b.isotropic or b.normalmap is not None for b in bsdfs) or self.any_bumpmap
         rows = bsdfs or [BSDF("diffuse", (0.0, 0.0, 0.0))]   # an empty scene still gathers (masked off)
-        self._reflectance = host_array(Float, np.pad(np.array([b.reflectance for b in rows], float), ((0, 0), (0, 1))),
-                                       HOST_FLOAT)
+        self._reflectance = row_table(np.array([b.reflectance for b in rows], float))
         self._kind = UInt32([KIND_CODE[b.kind] for b in rows])
         self._twosided = UInt32([int(b.twosided) for b in rows])
         self.any_back = bool(backs)
@@ -65,10 +63,7 @@ class MaterialTables:
             table = module.table(rows) if hasattr(module, "table") else None
             if table is not None:
                 fields = table.shape[1]
-                stride = packet(fields)
-                padded = np.zeros((len(table), stride))
-                padded[:, :fields] = table
-                self._tables[module.NAME] = (host_array(Float, padded, HOST_FLOAT), stride, fields)
+                self._tables[module.NAME] = (row_table(table), packet_size(fields), fields)
 
     def index(self, bsdf: BSDF) -> int:
         return self.bsdfs.index(bsdf)
@@ -78,8 +73,7 @@ class MaterialTables:
 
     def reflectance(self, surf, active: Bool) -> Array3f:
         """A material's reflectance at a surface point: its texture's where it has one."""
-        x = dr.gather(ArrayXf, self._reflectance, surf.material, active, shape=(4, dr.width(surf.material)))
-        return self.textured_value("reflectance", surf, Array3f(x[0], x[1], x[2]), active)
+        return self.textured_value("reflectance", surf, gather_vec3(self._reflectance, surf.material, active), active)
 
     def has_texture(self, slot: str) -> bool:
         """Whether some material of the scene gives parameter `slot` by a texture."""
@@ -157,10 +151,7 @@ class MaterialTables:
     def row(self, kind: str, material: UInt32, active: Bool, count: int | None = None) -> list[Float]:
         """Each field of the material's row in the kind's table (its module's `table`); the first `count`."""
         values, stride, fields = self._tables[kind]
-        count = fields if count is None else count
-        size = packet(count)          # a power of two dividing the stride: the row's first `size` values
-        x = dr.gather(ArrayXf, values, material * (stride // size), active, shape=(size, dr.width(material)))
-        return list(x)[:count]
+        return gather_row(values, stride, material, active, fields if count is None else count)
 
 
 def _slots(bsdfs: list[BSDF]) -> tuple[dict[str, UInt32], list]:
@@ -174,8 +165,3 @@ def _slots(bsdfs: list[BSDF]) -> tuple[dict[str, UInt32], list]:
                 textures.append(t)
             columns.setdefault(slot, [0] * len(bsdfs))[i] = 1 + next(k for k, u in enumerate(textures) if u is t)
     return {slot: UInt32(column) for slot, column in columns.items()}, textures
-
-
-def packet(count: int) -> int:
-    """The power of two at or above count: the values a packet load gathers."""
-    return 1 << max(count - 1, 0).bit_length()

@@ -13,7 +13,7 @@ import drjit as dr
 import numpy as np
 
 from ..bitmap import BitmapError, read_bitmap
-from ..jit import HOST_FLOAT, Array2f, Array3f, ArrayXf, Bool, Float, UInt32, host_array
+from ..jit import HOST_FLOAT, Array2f, Array3f, Bool, Float, UInt32, gather_row, gather_vec3, packet_size, row_table
 from ..spectra import rgb
 
 PLUGINS = {"checkerboard": ("color0", "color1", "to_uv"),
@@ -21,7 +21,7 @@ PLUGINS = {"checkerboard": ("color0", "color1", "to_uv"),
            "rawconstant": ("value",),
            "mesh_attribute": ("name", "scale")}
 FIELDS = 18         # per texture: kind, two colours, to_uv's two rows, a bitmap's offset, size and modes
-ROW = 32            # the fields' stride: a row is gathered in one packet load (a power of two, on a cache line)
+ROW = packet_size(FIELDS)     # the rows' stride (jit.row_table)
 IDENTITY_UV = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 LUMINANCE = (0.212671, 0.715160, 0.072169)   # Mitsuba's luminance() of linear sRGB (CIE Y)
 CHECKERBOARD, BITMAP, CONSTANT, ATTRIBUTE = 1, 2, 3, 4     # a texture's kind in its row (0: none)
@@ -170,14 +170,13 @@ def _bitmap(ctx, node, props) -> Bitmap:
 
 
 class TextureTables:
-    """One row per texture (row 0: none) and every bitmap's texels; a texture is named by its row. Rows
-    (ROW values, FIELDS used) and texels (RGB and a pad) start on a cache line and each is gathered in one
-    packet load, not value by value. `attributes`: the meshes' attributes (shapes.mesh.AttributeTable), where
-    a texture is a mesh_attribute."""
+    """One row per texture (row 0: none) and every bitmap's texels; a texture is named by its row. Rows and
+    texels are each gathered in one packet load (jit.row_table). `attributes`: the meshes' attributes
+    (shapes.mesh.AttributeTable), where a texture is a mesh_attribute."""
 
     def __init__(self, textures: list[Texture], attributes=None):
-        rows = np.zeros((len(textures) + 1, ROW))
-        texels = [np.zeros((1, 4), np.float32)]     # RGB and a pad: a texel is gathered in one packet load
+        rows = np.zeros((len(textures) + 1, FIELDS))
+        texels = [np.zeros((1, 3), np.float32)]
         offset = 1
         self.attributes = attributes
         for i, t in enumerate(textures, start=1):
@@ -189,15 +188,15 @@ class TextureTables:
                 rows[i, :5] = [ATTRIBUTE, *attributes.layout[t.name], t.scale]
             else:
                 h, w = t.image.shape[:2]
-                rows[i, :FIELDS] = [BITMAP, 0, 0, 0, 0, 0, 0, *np.asarray(t.to_uv)[:2].ravel(), offset, w, h, t.bilinear, t.wrap]
-                texels.append(np.pad(t.image.reshape(-1, 3), ((0, 0), (0, 1))))
+                rows[i] = [BITMAP, 0, 0, 0, 0, 0, 0, *np.asarray(t.to_uv)[:2].ravel(), offset, w, h, t.bilinear, t.wrap]
+                texels.append(t.image.reshape(-1, 3))
                 offset += h * w
-        self.rows = host_array(Float, rows, HOST_FLOAT)
-        self.texels = host_array(Float, np.concatenate(texels), HOST_FLOAT)
+        self.rows = row_table(rows)
+        self.texels = row_table(np.concatenate(texels))
         self.kinds = {KIND[type(t)] for t in textures}
 
     def _row(self, index: UInt32, active: Bool) -> list[Float]:
-        return list(dr.gather(ArrayXf, self.rows, index, active, shape=(ROW, dr.width(index))))[:FIELDS]
+        return gather_row(self.rows, ROW, index, active, FIELDS)
 
     @staticmethod
     def _uv(t: list[Float], uv: tuple[Float, Float]) -> tuple[Float, Float]:
@@ -277,8 +276,7 @@ class TextureTables:
         (i0, i1), (j0, j1) = wrapped(x0, w), wrapped(y0, h)
 
         def texel(i: UInt32, j: UInt32) -> Array3f:
-            x = dr.gather(ArrayXf, self.texels, UInt32(offset) + j * UInt32(w) + i, active, shape=(4, dr.width(i)))
-            return Array3f(x[0], x[1], x[2])
+            return gather_vec3(self.texels, UInt32(offset) + j * UInt32(w) + i, active)
 
         return (texel(i0, j0), texel(i1, j0), texel(i0, j1), texel(i1, j1)), (wx, wy)
 

@@ -23,7 +23,7 @@ import drjit as dr
 import numpy as np
 
 from .. import transform
-from ..jit import HOST_FLOAT, NO_PRIM, Array3f, ArrayXf, Bool, Float, UInt32, opaque_u32
+from ..jit import HOST_FLOAT, NO_PRIM, Array3f, ArrayXf, Bool, Float, UInt32, gather_vec3, opaque_u32, row_table
 from .bvh import BVHKernel, layout, leaf_prim, leaf_rows
 from .mesh import Mesh, MeshSet
 from .planar import inset_point
@@ -113,8 +113,8 @@ class InstanceSet:
         table = np.concatenate([m[:, :3, :].transpose(0, 2, 1).reshape(-1, 12),
                                 m_inv[:, :3, :3].reshape(-1, 9)], 1)
         self.matrices = Float(table.astype(HOST_FLOAT).ravel())
-        self.normal_table = Float(self.meshes.normals().astype(HOST_FLOAT).ravel())
-        self.frame_table = Float(self.meshes.frames().ravel())
+        self.normal_table = row_table(self.meshes.normals())
+        self.frame_table = row_table(self.meshes.frames())
         self.material = None    # per triangle of the group: its material's index (set_materials)
 
     def set_materials(self, index) -> None:
@@ -188,7 +188,7 @@ class InstanceSet:
         """The hit point on an instanced triangle kept inside it (shapes.planar.inset_point) in the group's
         space, then placed by M (p elsewhere)."""
         mine, inst, tri = self.local(prim, Bool(True))
-        origin, e1, e2 = (dr.gather(Array3f, self.frame_table, tri * 3 + k, mine) for k in range(3))
+        origin, e1, e2 = (gather_vec3(self.frame_table, tri * 3 + k, mine) for k in range(3))
         q = inset_point(origin, e1, e2, b1, b2, Bool(False))
         c = self._matrix(inst, mine)
         return dr.select(mine, c[0] * q.x + c[1] * q.y + c[2] * q.z + c[3], p)
@@ -206,7 +206,7 @@ class InstanceSet:
         def normal(v):      # M^-T v, renormalised: (M^-T v)_j = sum_i (M^-1)_ij v_i
             return dr.normalize(c[4] * v.x + c[5] * v.y + c[6] * v.z)
 
-        n_local = dr.gather(Array3f, self.normal_table, tri, mine)
+        n_local = gather_vec3(self.normal_table, tri, mine)
         out_n = dr.select(mine, normal(n_local), n)
         out_ns = dr.select(mine, normal(self.meshes.shading_normal(tri, b1, b2, n_local)), ns)
         out_material = dr.select(mine, dr.gather(UInt32, self.material, tri, mine), material)

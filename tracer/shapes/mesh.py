@@ -18,7 +18,8 @@ from ..ply_attributes import Attributes
 from ..meshes import (MeshError, bounding_box, corner_blocks, cross_rows, length_rows, read_obj, read_ply,
                       vertex_normals)
 from ..serialized import read_serialized
-from ..jit import CORES, HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, aligned_zeros, vec3
+from ..jit import CORES, HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, aligned_zeros, gather_row, gather_vec3, \
+    row_table, vec3
 from ..sampling import square_to_uniform_triangle
 from .base import ShapeArgs, ShapeSet, exclude
 from .triangle import ray_triangle
@@ -201,7 +202,7 @@ class MeshSet(ShapeSet):
         self.smooth = any(m.normals is not None for m in meshes)
         source = [a for m in meshes for a in (m.vertices, m.faces)]   # what the triangles are made of
         self.bvh = self._bvh(source) if self.uses_bvh(self.count, bvh_threshold) else None
-        self.corner_normals = Float(self._corner_normals().ravel())
+        self.corner_normals = row_table(self._corner_normals())
         self.corner_uvs = None
         self.tangents = None
         self._emitter_tables: dict[int, tuple[Float, Float]] = {}
@@ -275,7 +276,7 @@ class MeshSet(ShapeSet):
         uvs = np.zeros((max(self.count, 1), 3, 2))
         for m, lo, n in self.shape_primitives():
             uvs[lo - self.base:lo - self.base + n] = m.uvs[m.faces] if m.uvs is not None else [[0, 0], [1, 0], [0, 1]]
-        self.corner_uvs = Float(uvs.ravel())
+        self.corner_uvs = row_table(uvs.reshape(-1, 6))
 
     def build_tangents(self) -> None:
         """Per triangle dp/du as Mitsuba's mesh computes it: from the corners' texture coordinates (the
@@ -298,8 +299,7 @@ class MeshSet(ShapeSet):
             dpdv = (duv0[:, 0, None] * dp1 - duv1[:, 0, None] * dp0) / np.where(ok, det, 1.0)[:, None]
             s, t = coordinate_system_rows(self.normals()[tri], both=True)
             out[tri], out_v[tri] = np.where(ok[:, None], dpdu, s), np.where(ok[:, None], dpdv, t)
-        self.tangents = Float(out.astype(HOST_FLOAT).ravel())
-        self.cotangents = Float(out_v.astype(HOST_FLOAT).ravel())
+        self.tangents, self.cotangents = row_table(out), row_table(out_v)
 
     def attribute_table(self, names: set[str]) -> AttributeTable:
         """The meshes' attributes `names` per triangle: a face attribute's value, a vertex attribute's at
@@ -323,14 +323,14 @@ class MeshSet(ShapeSet):
         if not self.count:
             return dpdu
         tri, is_tri = self._triangle(prim, valid)
-        return dr.select(is_tri, dr.gather(Array3f, self.tangents, tri, is_tri), dpdu)
+        return dr.select(is_tri, gather_vec3(self.tangents, tri, is_tri), dpdu)
 
     def cotangent(self, prim, valid, dpdv):
         """Mitsuba's dp/dv (true length) where prim is a triangle (`dpdv` elsewhere); built by build_tangents."""
         if not self.count:
             return dpdv
         tri, is_tri = self._triangle(prim, valid)
-        return dr.select(is_tri, dr.gather(Array3f, self.cotangents, tri, is_tri), dpdv)
+        return dr.select(is_tri, gather_vec3(self.cotangents, tri, is_tri), dpdv)
 
     def frames(self) -> np.ndarray:
         return self._frames_normals[0]
@@ -385,9 +385,9 @@ class MeshSet(ShapeSet):
             return n
         tri, is_tri = self._triangle(prim, True)
         b0 = 1.0 - b1 - b2
-        interp = (dr.gather(Array3f, self.corner_normals, tri * 3, is_tri) * b0
-                  + dr.gather(Array3f, self.corner_normals, tri * 3 + 1, is_tri) * b1
-                  + dr.gather(Array3f, self.corner_normals, tri * 3 + 2, is_tri) * b2)
+        interp = (gather_vec3(self.corner_normals, tri * 3, is_tri) * b0
+                  + gather_vec3(self.corner_normals, tri * 3 + 1, is_tri) * b1
+                  + gather_vec3(self.corner_normals, tri * 3 + 2, is_tri) * b2)
         return dr.select(is_tri, dr.normalize(interp), n)
 
     def uv(self, prim, valid, p, b1, b2, uv):
@@ -397,7 +397,7 @@ class MeshSet(ShapeSet):
         u, v = uv
         tri, is_tri = self._triangle(prim, valid)
         b0 = 1.0 - b1 - b2
-        c = [dr.gather(Float, self.corner_uvs, tri * 6 + k, is_tri) for k in range(6)]
+        c = gather_row(self.corner_uvs, 8, tri, is_tri, 6)
         return (dr.select(is_tri, c[0] * b0 + c[2] * b1 + c[4] * b2, u),
                 dr.select(is_tri, c[1] * b0 + c[3] * b1 + c[5] * b2, v))
 
@@ -408,7 +408,7 @@ class MeshSet(ShapeSet):
             areas = m.triangle_areas
             # a mesh of no area emits nothing (its samples' density is infinite): any points will do
             cdf = np.cumsum(areas) / m.area if m.area > 0 else np.arange(1, len(areas) + 1) / len(areas)
-            self._emitter_tables[id(m)] = Float(cdf), Float(m.vertices[m.faces].ravel())
+            self._emitter_tables[id(m)] = Float(cdf), row_table(m.vertices[m.faces])
         return self._emitter_tables[id(m)]
 
     def sample(self, m: Mesh, lo: int, u1: Float, u2: Float, geo) -> tuple[Array3f, Array3f, UInt32]:
@@ -421,11 +421,11 @@ class MeshSet(ShapeSet):
         u1 = dr.clip((u1 - below) / (above - below), 0.0, 1.0 - 2.0 ** -24)
         b1, b2 = square_to_uniform_triangle(u1, u2)
         prim = self.prim(lo - self.base) + tri
-        v = [dr.gather(Array3f, corners, tri * 3 + c) for c in range(3)]
+        v = [gather_vec3(corners, tri * 3 + c) for c in range(3)]
         y = v[0] * (1.0 - b1 - b2) + v[1] * b1 + v[2] * b2
         n = geo.shading_row(prim)[0]
         if m.normals is not None:
-            cn = [dr.gather(Array3f, self.corner_normals, (prim - self.base) * 3 + c) for c in range(3)]
+            cn = [gather_vec3(self.corner_normals, (prim - self.base) * 3 + c) for c in range(3)]
             n = dr.normalize(cn[0] * (1.0 - b1 - b2) + cn[1] * b1 + cn[2] * b2)
         return y, n, prim
 

@@ -9,7 +9,7 @@ import drjit as dr
 import numpy as np
 
 from .. import transform
-from ..jit import HOST_FLOAT, INF, Array3f, ArrayXf, Bool, Float, UInt32, opaque_f, opaque_vec3
+from ..jit import HOST_FLOAT, INF, Array3f, ArrayXf, Bool, Float, UInt32, gather_vec3, opaque_f, opaque_vec3, row_table
 from ..sampling import square_to_uniform_sphere
 from .base import ShapeArgs, ShapeSet
 from .bvh import BVHKernel, layout, leaf_prim, leaf_rows
@@ -110,8 +110,8 @@ class SphereSet(ShapeSet):
         super().__init__(shapes, base)
         if self.uses_bvh(self.count):
             self.bvh = SphereBVH(self.shapes, base)
-            self.centers = Float(np.array([s.center for s in self.shapes], HOST_FLOAT).ravel())
-            self.axes = Float(np.array([s.frame.T for s in self.shapes], HOST_FLOAT).ravel())
+            self.centers = row_table(np.array([s.center for s in self.shapes]))
+            self.axes = row_table(np.array([s.frame.T for s in self.shapes]))
 
     @staticmethod
     def uses_bvh(spheres: int) -> bool:
@@ -149,7 +149,7 @@ class SphereSet(ShapeSet):
         local = self.local(prim)
         is_sphere = local < self.size
         if self.bvh is not None:
-            center = dr.gather(Array3f, self.centers, local, is_sphere)
+            center = gather_vec3(self.centers, local, is_sphere)
         else:
             center = self._constants(0)[0]
             for k in range(1, self.count):
@@ -179,8 +179,8 @@ class SphereSet(ShapeSet):
         local = self.local(prim)
         is_sphere = local < self.size
         if self.bvh is not None:
-            center = dr.gather(Array3f, self.centers, local, is_sphere)
-            axes = [dr.gather(Array3f, self.axes, local * 3 + j, is_sphere) for j in range(3)]
+            center = gather_vec3(self.centers, local, is_sphere)
+            axes = [gather_vec3(self.axes, local * 3 + j, is_sphere) for j in range(3)]
         else:
             center, _, _, axes = self._constants(0)
             for k in range(1, self.count):
