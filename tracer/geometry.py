@@ -16,8 +16,8 @@ from functools import cached_property
 import drjit as dr
 import numpy as np
 
-from .jit import HOST_FLOAT, NO_PRIM, Array3f, Bool, Float, UInt32, gather_row, gather_vec3, opaque_f, opaque_u32, \
-    opaque_vec3, row_table, vec3
+from .jit import NO_PRIM, Array3f, Bool, Float, UInt32, gather_row, gather_vec3, host_array, opaque_f, \
+    opaque_u32, opaque_vec3, row_buffer, vec3
 from .lights import ConstantEnvironment, EnvironmentMap, LightSample, select_sample
 from .lights import choice as light_choices
 from .lights.envmap import EnvmapKernel
@@ -187,12 +187,12 @@ class SceneGeometry:
             for b in scene.bsdfs)
 
     # ---- host-side tables, gathered by primitive index -------------------------------------------
-    # Rows a lane gathers in one packet load (jit.row_table): prim_shading, the normal and material;
-    # prim_emission, the radiance and light pdf; prim_frame, each of origin, e1 and e2.
+    # Rows a lane gathers in one packet load (jit.row_table): prim_shading, the normal and material (as a
+    # float); prim_emission, the radiance and light pdf; prim_frame, each of origin, e1 and e2.
     def _build_tables(self) -> None:
         n = max(self.n_prims, 1)  # an empty scene still needs a table to gather (masked off) from
-        normals, material = np.zeros((n, 3), HOST_FLOAT), np.zeros(n, np.uint32)
-        radiance, light_pdf = np.zeros((n, 3), HOST_FLOAT), np.zeros(n, HOST_FLOAT)
+        shading, emission = row_buffer((n,), 4), row_buffer((n,), 4)
+        normals, material, radiance, light_pdf = shading[:, :3], shading[:, 3], emission[:, :3], emission[:, 3]
         emitting = np.zeros(n, bool)
         for shapes in self.shape_sets:
             normals[shapes.base:shapes.base + shapes.count] = shapes.normals()
@@ -206,15 +206,14 @@ class SceneGeometry:
             emitting[lo:hi] = area > 0
         if len(self.materials.bsdfs) > 1 << 24:
             raise SceneError(f"{self.scene.path}: more than 2^24 materials (a primitive's is read as a float)")
-        self.prim_shading = row_table(np.column_stack([normals, material]))
-        self.prim_emission = row_table(np.column_stack([radiance, light_pdf]))
+        self.prim_shading, self.prim_emission = host_array(Float, shading), host_array(Float, emission)
         # emits() reads the light pdf where it is positive exactly on the emitters, else a table of its own
         self.prim_emits = None if np.array_equal(emitting, light_pdf > 0) else UInt32(emitting.astype(np.uint32))
-        frames = np.zeros((max(self.curved_base, 1), 3, 3), HOST_FLOAT)
+        frames = row_buffer((max(self.curved_base, 1), 3), 3)
         for shapes in self.shape_sets:
             if shapes.planar:
-                frames[shapes.base:shapes.base + shapes.count] = shapes.frames()
-        self.prim_frame = row_table(frames)
+                frames[shapes.base:shapes.base + shapes.count, :, :3] = shapes.frames()
+        self.prim_frame = host_array(Float, frames)
         if self.materials.textured:
             self.meshes.build_uvs()
         if self.materials.oriented:

@@ -160,12 +160,18 @@ def packet_size(count: int) -> int:
     return 1 << max(count - 1, 0).bit_length()
 
 
+def row_buffer(shape: tuple[int, ...], k: int) -> np.ndarray:
+    """Zeros (*shape, packet_size(k)) in Float's type on a cache line: rows of k values to fill in place
+    ([..., :k]) and hand to host_array, as row_table does, without a copy of the unpadded rows."""
+    return aligned_zeros((*shape, packet_size(k)), HOST_FLOAT)
+
+
 def row_table(rows: np.ndarray):
     """Rows (..., k) as a Float table of rows of packet_size(k) values, zero-padded, on a cache line, so that
     gather_row reads a row in one packet load."""
     rows = np.asarray(rows)
     k = rows.shape[-1]
-    out = aligned_zeros((rows.size // k, packet_size(k)), HOST_FLOAT)
+    out = row_buffer((rows.size // k,), k)
     out[:, :k] = rows.reshape(-1, k)
     return host_array(Float, out)
 

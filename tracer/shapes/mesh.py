@@ -19,7 +19,7 @@ from ..meshes import (MeshError, bounding_box, corner_blocks, cross_rows, length
                       vertex_normals)
 from ..serialized import read_serialized
 from ..jit import CORES, HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, aligned_zeros, gather_row, gather_vec3, \
-    row_table, vec3
+    host_array, row_buffer, row_table, vec3
 from ..sampling import square_to_uniform_triangle
 from .base import ShapeArgs, ShapeSet, exclude
 from .triangle import ray_triangle
@@ -202,7 +202,7 @@ class MeshSet(ShapeSet):
         self.smooth = any(m.normals is not None for m in meshes)
         source = [a for m in meshes for a in (m.vertices, m.faces)]   # what the triangles are made of
         self.bvh = self._bvh(source) if self.uses_bvh(self.count, bvh_threshold) else None
-        self.corner_normals = row_table(self._corner_normals())
+        self.corner_normals = host_array(Float, self._corner_normals()) if self.smooth else None   # read there only
         self.corner_uvs = None
         self.tangents = None
         self._emitter_tables: dict[int, tuple[Float, Float]] = {}
@@ -262,11 +262,12 @@ class MeshSet(ShapeSet):
         return np.concatenate(used) if used else np.zeros((0, 3))
 
     def _corner_normals(self) -> np.ndarray:
-        """(triangles, 3, 3) shading normals at each triangle's corners (its face normal on flat meshes)."""
-        out = np.zeros((max(self.count, 1), 3, 3), HOST_FLOAT)
+        """(triangles, 3) rows (jit.row_buffer) of the shading normals at each triangle's corners (its face normal
+        on flat meshes)."""
+        out = row_buffer((max(self.count, 1), 3), 3)
         for m, lo, n in self.shape_primitives():
             tri = slice(lo - self.base, lo - self.base + n)
-            out[tri] = np.take(m.normals.astype(HOST_FLOAT), m.faces, axis=0) if m.normals is not None \
+            out[tri, :, :3] = np.take(m.normals.astype(HOST_FLOAT), m.faces, axis=0) if m.normals is not None \
                 else self.normals()[tri][:, None, :]
         return out
 
