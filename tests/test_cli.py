@@ -200,6 +200,15 @@ def test_help_and_version_do_not_import_drjit():
     assert run.stdout.rstrip().endswith("drjit imported: False")
 
 
+def test_a_render_without_progress_does_not_import_the_progress_bar():
+    code = ("import sys\nimport tracer\nfrom tracer.rendering import render\n"
+            f"render(tracer.load_scene({str(ROOM)!r}, width=4, height=4), spp=1)\n"
+            "print('tqdm imported:', 'tqdm' in sys.modules)")
+    run = _python(code)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.rstrip().endswith("tqdm imported: False")
+
+
 @pytest.mark.parametrize("given, used", [(None, "1"), ("3", "3")])
 def test_the_command_line_runs_numpy_with_one_blas_thread_unless_told(given, used):
     env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}

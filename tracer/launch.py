@@ -11,16 +11,22 @@ from .plan import PATH_CHUNK
 
 
 def chunks(total: int, size: int, progress: bool, label: str):
-    """(start, count) of consecutive launches of at most `size` samples, with a progress bar."""
-    from tqdm import tqdm      # here: its import takes 0.04 s, a tenth of a small scene's whole process
-    bar = tqdm(total=total, unit="spl", unit_scale=True, desc=label, disable=not progress, leave=False)
+    """(start, count) of consecutive launches of at most `size` samples, with a progress bar if `progress`."""
+    bar = _bar(total, label) if progress else None
     for start in range(0, total, size):
         n = min(size, total - start)
         yield start, n
         compile_clock.lap()    # the launch's kernels leave Dr.Jit's history
         memory_guard.check()
-        bar.update(n)
-    bar.close()
+        if bar is not None:
+            bar.update(n)
+    if bar is not None:
+        bar.close()
+
+
+def _bar(total: int, label: str):
+    from tqdm import tqdm      # here: its import takes 0.04 s, a tenth of a small scene's whole process
+    return tqdm(total=total, unit="spl", unit_scale=True, desc=label, leave=False)
 
 
 def seed_state(seed: int, *stream: int) -> int:
