@@ -420,7 +420,7 @@ class SceneGeometry:
         own = self.own(surf.prim, surf.valid)
         if self.prim_emits is not None:     # a light never chosen (sampling_weight 0, or no power)
             return own & (dr.gather(UInt32, self.prim_emits, surf.prim, own) > 0)
-        return own & (gather_row(self.prim_emission, 4, surf.prim, own)[3] > 0)
+        return own & (self.light_pdf_area(surf) > 0)
 
     def environment_radiance(self, d: Array3f) -> Array3f:
         """Radiance arriving from the environment along -d (d: the direction leaving the scene)."""

@@ -9,7 +9,7 @@ import drjit as dr
 import numpy as np
 
 from .. import transform
-from ..jit import HOST_FLOAT, INF, Array3f, ArrayXf, Bool, Float, UInt32, gather_vec3, opaque_f, opaque_vec3, row_table
+from ..jit import INF, Array3f, ArrayXf, Bool, Float, UInt32, gather_vec3, opaque_f, opaque_vec3, row_table
 from ..sampling import square_to_uniform_sphere
 from .base import ShapeArgs, ShapeSet
 from .bvh import BVHKernel, layout, leaf_prim, leaf_rows
