@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from tracer.film import Film, ReconstructionFilter
+from tracer.film import ALIGNED_RUN, Film, ReconstructionFilter
 from tracer.jit import Array3f, Float
 from validation.verdict.mitsuba_render import mitsuba
 from validation.verdict.protocol import ALPHA   # family-wise false-positive rate of one comparison
@@ -24,9 +24,9 @@ def _samples(width, height, n, seed=0):
     return rng.uniform(0, 1, (n, 2)) * [width, height], rng.uniform(0, 2, (n, 3))
 
 
-def _ours(f, width, height, pos, values):
+def _ours(f, width, height, pos, values, run=1):
     film = Film(width, height, f)
-    film.put(Float(pos[:, 0]), Float(pos[:, 1]), Array3f(*(Float(v) for v in values.T)))
+    film.put(Float(pos[:, 0]), Float(pos[:, 1]), Array3f(*(Float(v) for v in values.T)), run=run)
     return film.develop(), film.weights()
 
 
@@ -42,11 +42,12 @@ def _mitsuba_block(f, width, height, pos, values):
     return t[..., :3] / np.where(w == 0, 1, w), w[..., 0]
 
 
+@pytest.mark.parametrize("run", [1, ALIGNED_RUN])
 @pytest.mark.parametrize("name", FILTERS)
-def test_splatting_matches_mitsubas_image_block(name):
+def test_splatting_matches_mitsubas_image_block(name, run):
     f, (w, h) = FILTERS[name], (9, 6)
     pos, values = _samples(w, h, 400)
-    ours, our_w = _ours(f, w, h, pos, values)
+    ours, our_w = _ours(f, w, h, pos, values, run)
     theirs, their_w = _mitsuba_block(f, w, h, pos, values)
     # Mitsuba's LLVM Gaussian is a polynomial fit of exp whose error reaches 4.2e-4 of the peak weight
     # (test_filter_values_match_mitsuba): agreement to that, not to float32 epsilon
@@ -135,3 +136,17 @@ def test_agreement_test_sees_a_box_filter_against_a_gaussian_reference(tmp_path)
 
     ours, theirs = _both(_variant(tmp_path, ""), rfilter=ReconstructionFilter("box"))
     assert not welch_test(ours, theirs, alpha=ALPHA).passed
+
+
+@pytest.mark.parametrize("name", FILTERS)
+def test_a_pixels_footprint_adds_what_each_samples_footprint_adds(name):
+    # samples in pixel order, 8 a pixel (as a render's): the footprint shared by a pixel's samples
+    # (run >= ALIGNED_RUN) takes the same weights, summed in another order
+    w, h, spp = 7, 5, 8
+    rng = np.random.default_rng(3)
+    pixel = np.repeat(np.arange(w * h), spp)
+    pos = np.stack([pixel % w, pixel // w], 1) + rng.uniform(0, 1, (len(pixel), 2))
+    values = rng.uniform(0, 2, (len(pixel), 3))
+    (a, a_w), (b, b_w) = (_ours(FILTERS[name], w, h, pos, values, run) for run in (1, spp))
+    np.testing.assert_allclose(b_w, a_w, rtol=1e-6)
+    np.testing.assert_allclose(b, a, rtol=1e-5)

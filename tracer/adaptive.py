@@ -126,7 +126,7 @@ def adaptive_passes(film: Film, sampler, spp: int, pilot_spp: int, seed: int, cr
 
     # 1. Pilot: pilot_spp samples per pixel, sums and sums of squares.
     rays = trace_pass(film, sampler, pixels * pilot_spp, lambda sample: sample // pilot_spp,
-                      seed_state(seed, STREAM, 0), progress, "pilot", squares)
+                      seed_state(seed, STREAM, 0), progress, "pilot", squares, run=pilot_spp)
 
     # 2. Allocation, from each pixel's neighbours only (or, the biased variant, from its own pilot).
     mean, second = film.develop().astype(np.float64), squares.develop().astype(np.float64)

@@ -65,8 +65,8 @@ def render_aovs(scene: Scene, spp: int = DEFAULT_SPP, seed: int | None = None,
             rng = seeded_rng(sample, seed_state(seed, AOV_STREAM))
             o, d, t_min, t_max, x, y = primary_rays(cam, sample // opaque_u32(spp), rng)
             albedo, normal = first_diffuse_features(geo, o, d, t_min, t_max, rng)
-            albedo_film.put(x, y, albedo)
-            normal_film.put(x, y, normal)
+            albedo_film.put(x, y, albedo, run=spp)
+            normal_film.put(x, y, normal, run=spp)
             dr.eval(albedo_film.data, normal_film.data)
         return albedo_film.develop(), normal_film.develop()
 

@@ -68,7 +68,7 @@ class PathEstimator:
         """`spp` samples per pixel into `film`, in launches of `chunk` paths; returns the rays traced."""
         sampler = lambda sample, pixel, state: self.samples(geo, scene, sample, pixel, state)  # noqa: E731
         return trace_pass(film, sampler, pixel_count(scene.camera) * spp, lambda sample: sample // opaque_u32(spp),
-                          seed_state(seed), progress, "path", chunk=chunk)
+                          seed_state(seed), progress, "path", chunk=chunk, run=spp)
 
 
 @dataclass(frozen=True)
@@ -131,7 +131,7 @@ class BranchingEstimator:
                                            seed_state(seed, index, vertex))
                 rays += traced
                 vertex += 1
-            film.put(x, y, dr.gather(Array3f, radiance, dr.arange(UInt32, n)))
+            film.put(x, y, dr.gather(Array3f, radiance, dr.arange(UInt32, n)), run=spp)
             dr.eval(film.data)
         return rays
 

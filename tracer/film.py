@@ -18,6 +18,12 @@ from .jit import Array3f, Bool, Float, Int32, UInt32, opaque_u32
 
 FILTERS = ("box", "gaussian", "tent")
 DEVELOP_PIXELS = 1 << 15   # pixels developed at once (whole rows, at least one)
+# Samples per pixel from which a sample's filter footprint is the same for every sample of its pixel (one
+# more pixel each way), so that the lanes of a SIMD packet, samples of one pixel, add to the same pixels and
+# Dr.Jit sums each addition over the packet before its one atomic add, instead of adding lane by lane to the
+# two positions a footprint may start at per axis. Measured on 2^20 samples into a 960 x 720 film, Gaussian
+# filter (25 against 16 pixels), AVX2: 0.70 of the time at 8 spp and above, 0.87 at 4, 1.3 at 2.
+ALIGNED_RUN = 4
 
 
 @dataclass(frozen=True)
@@ -61,8 +67,9 @@ class Film:
         """Pixels of border on each side: the filter's reach beyond the image's edge pixels."""
         return max(0, math.ceil(rfilter.radius - 0.5)) if rfilter.kind != "box" else 0
 
-    def put(self, x: Float, y: Float, value: Array3f, active: Bool | bool = True) -> None:
-        """Adds samples at film positions (x, y) in pixels (0 .. width, 0 .. height)."""
+    def put(self, x: Float, y: Float, value: Array3f, active: Bool | bool = True, run: int = 1) -> None:
+        """Adds samples at film positions (x, y) in pixels (0 .. width, 0 .. height). `run`: how many
+        consecutive lanes share a pixel (the samples per pixel, in the camera's sample order)."""
         if self.rfilter.kind == "box":
             px = dr.minimum(UInt32(dr.floor(x)), opaque_u32(self.width - 1))   # the size out of the kernel
             py = dr.minimum(UInt32(dr.floor(y)), opaque_u32(self.height - 1))
@@ -70,11 +77,17 @@ class Film:
             return
         r = self.rfilter.radius
         fx, fy = x - 0.5 + self.border, y - 0.5 + self.border     # position relative to pixel centres
-        x0 = dr.maximum(Int32(dr.ceil(fx - r)), 0)
-        y0 = dr.maximum(Int32(dr.ceil(fy - r)), 0)
-        x1 = dr.minimum(Int32(dr.floor(fx + r)), self.size[0] - 1)
-        y1 = dr.minimum(Int32(dr.floor(fy + r)), self.size[1] - 1)
-        span = math.ceil(2 * r)
+        if run >= ALIGNED_RUN:      # the pixels within reach of the sample's pixel (5 x 5 at radius 2)
+            reach = math.floor(r + 0.5)
+            x0, y0 = Int32(dr.floor(fx + 0.5)) - reach, Int32(dr.floor(fy + 0.5)) - reach
+            x1, y1 = x0 + 2 * reach, y0 + 2 * reach
+            span = 2 * reach + 1
+        else:                       # the pixels within reach of the sample (4 x 4 at radius 2)
+            x0, y0 = Int32(dr.ceil(fx - r)), Int32(dr.ceil(fy - r))
+            x1, y1 = Int32(dr.floor(fx + r)), Int32(dr.floor(fy + r))
+            span = math.ceil(2 * r)
+        x0, y0 = dr.maximum(x0, 0), dr.maximum(y0, 0)
+        x1, y1 = dr.minimum(x1, self.size[0] - 1), dr.minimum(y1, self.size[1] - 1)
         wx = [self.rfilter.eval(Float(x0 + i) - fx) for i in range(span)]
         for j in range(span):
             wy = self.rfilter.eval(Float(y0 + j) - fy)

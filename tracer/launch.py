@@ -38,17 +38,17 @@ def seed_state(seed: int, *stream: int) -> int:
 
 
 def trace_pass(film: Film, sampler, total: int, pixel_of, state: int, progress: bool, label: str,
-               squares: Film | None = None, chunk: int = PATH_CHUNK) -> int:
+               squares: Film | None = None, chunk: int = PATH_CHUNK, run: int = 1) -> int:
     """`total` samples into `film`, in launches of `chunk`: sample k goes through pixel pixel_of(k)
     and `sampler(sample, pixel, state)` (as PathEstimator.samples) traces it. `squares`, if given, sums the
-    squared radiance. Returns the rays traced."""
+    squared radiance; `run`: consecutive samples that share a pixel (Film.put). Returns the rays traced."""
     rays = 0
     for start, n in chunks(total, chunk, progress, label):
         sample = dr.arange(UInt32, n) + opaque_u32(start)
         x, y, L, count = sampler(sample, pixel_of(sample), state)
-        film.put(x, y, L)
+        film.put(x, y, L, run=run)
         if squares is not None:
-            squares.put(x, y, L * L)
+            squares.put(x, y, L * L, run=run)
         launched = dr.sum(count)
         dr.eval(film.data, launched, *([] if squares is None else [squares.data]))
         rays += int(launched[0])
