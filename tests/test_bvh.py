@@ -11,7 +11,7 @@ import drjit as dr
 
 from tracer.shapes.bvh import LEAF_BIT, WIDTH, BVHKernel, layout, wide_children
 from tracer.jit import aligned
-from tracer.shapes.bvh_build import BINS, LEAF_SIZE, TRAVERSAL_COST, Tree, build, depth_first, sah_cost
+from tracer.shapes.bvh_build import BINS, LEAF_SIZE, SAMPLES, TRAVERSAL_COST, Tree, build, depth_first, sah_cost
 from tracer.jit import NO_PRIM, Array3f, ArrayXu, Bool, Float, UInt32
 
 from .conftest import SCENES, kernel_hashes
@@ -217,7 +217,7 @@ def test_build_splits_each_node_where_the_surface_area_heuristic_is_least(ties):
         along = [a for a in range(3) if set(ordered[a][:len(left)]) == set(left)]
         assert along, "the left child is no prefix of the node's triangles along any axis"
         axes.append(along[0])
-        if len(mine) > 256:
+        if len(mine) > SAMPLES:
             continue   # bins of sampled triangles: checked on the smaller nodes
         bins = min(len(mine), BINS)
         best = min(_split_cost(tris, order, len(mine) * k // bins) for order in ordered for k in range(1, bins))
