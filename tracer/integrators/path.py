@@ -89,11 +89,14 @@ def trace_paths(geo: SceneGeometry, rng: PCG32, path, bounce, *args) -> tuple[Ar
     return trace(geo, rng, path, bounce, *args)
 
 
-@dr.syntax
 def _megakernel(geo: SceneGeometry, rng: PCG32, path, bounce, *args) -> tuple[Array3f, UInt32]:
-    """Every path to its end in the caller's kernel, its vertices in a symbolic loop."""
-    while path.active:
+    """Every path to its end in the caller's kernel, its vertices in a symbolic loop (dr.while_loop written
+    out: dr.syntax would read and rewrite this module's source at each process's import)."""
+    def body(path, rng):
         bounce(geo, rng, path, *args)
+        return path, rng
+
+    path, rng = dr.while_loop((path, rng), lambda path, rng: path.active, body, labels=("path", "rng"))
     return path.L, path.rays
 
 

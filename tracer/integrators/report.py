@@ -113,14 +113,15 @@ def _shadow_rays(geo, surf, smooth, wave, n_direct, radiance, seed) -> int:
     return count * n_direct
 
 
-@dr.syntax
 def direct_estimate(geo: SceneGeometry, surf: Surface, bsdf: SurfaceBSDF, rng: PCG32, n_direct: int) -> Array3f:
     """Eq. 10: (1/N) sum of f cos_x Le cos_y / (d^2 pdf) over N shadow rays, looped within each lane."""
-    total, i = Array3f(0.0), UInt32(0)
-    while i < n_direct:
+    def body(total, i, rng):
         ds = sample_direct(geo, surf, bsdf, rng.next_float32(), rng.next_float32(), rng.next_float32(), Bool(True))
-        total += ds.value
-        i += 1
+        return total + ds.value, i + 1, rng
+
+    total, _, out = dr.while_loop((Array3f(0.0), UInt32(0), rng), lambda total, i, rng: i < n_direct, body,
+                                  labels=("total", "i", "rng"))
+    rng.state = out.state
     return total * (1.0 / n_direct)
 
 
