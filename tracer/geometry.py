@@ -407,7 +407,7 @@ class SceneGeometry:
         le = Array3f(0.0)
         if self.emitters:
             own = self.own(surf.prim, surf.valid)
-            le = Array3f(*gather_row(self.prim_emission, 4, surf.prim, own)[:3])
+            le = gather_vec3(self.prim_emission, surf.prim, own)
             le = dr.select(own & (dr.dot(surf.ns, wi) > 0), le, Array3f(0.0))
         if self.has_environment:
             le = dr.select(surf.valid, le, self.environment_radiance(-wi))
