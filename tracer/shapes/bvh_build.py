@@ -29,7 +29,7 @@ from ..errors import BackendError
 from ..jit import CORES
 
 LEAF_SIZE = 7      # most triangles in a leaf (a leaf's link holds the count in 3 bits)
-TRAVERSAL_COST = 2.0   # the SAH's cost of a walk's step through an inner node, in triangle tests (see _native)
+TRAVERSAL_COST = 1.0   # the SAH's cost of a walk's step through an inner node, in triangle tests (see _native)
 BINS = 32          # SAH candidate splits per node: between bins of equal triangle counts
 SAMPLES = 65536    # triangles whose boxes stand for a node's bins (all of a smaller node's)
 # 32 bins of every triangle below 65,536 (from 16 bins of 256 sampled triangles, whose boxes understate
@@ -113,10 +113,14 @@ def _native():
     triangles weighted by the chance that a ray through the node's box enters the child's (surface areas
     A); a leaf costs its triangles. The split is the least costly of the three axes' (the first of equal
     costs: x, then y, then z); near-equal costs go to the more even split (so that equal triangles do not
-    make a chain). C = 2 was chosen from 1, 2 and 3, measured on the bench's meshes at 997,534 triangles
-    (batched closest hits 4.4, 5.2, 5.4 and shadow rays 6.7, 8.2, 7.9 M rays/s): against 1 it makes more
-    nodes leaves, the walks faster and the node table 38% smaller. Every axis's list is then partitioned
-    stably, left child first. Nodes of a level are spread over threads where the level is large.
+    make a chain). C = 1: the walk (shapes.bvh) takes a step per row, two binary levels, and a step per
+    triangle of a leaf, so a binary node costs about half a triangle. Measured against C = 2 on the rays of
+    1-spp renders replayed through both trees (batched walks, one thread, fastest of 5, interleaved):
+    mitsuba-data's bsdf_conductor_gold 0.93 of the walks' time, shape_ply_bunny 0.93, matpreview 0.93; the
+    bench's 997,534-triangle mesh scene (8 spp) 0.99, with 1.6 times the nodes (mean leaf 1.85 against
+    2.94 triangles); C = 0.75 and 0.5 within 2% of C = 1; C = 3 took 1.08 times C = 2's time on gold.
+    Every axis's list is then partitioned stably, left child first. Nodes of a level are spread over
+    threads where the level is large.
     leaf_boxes: (lo, hi) of the leaves' triangles (slots [first, first + count) of the first list).
     Compiled without fused multiply-add or fast math: boxes float32 (their maxima exact), areas and costs
     float64, each operation rounded as written, min/max keeping the second of equal values, so the tree is

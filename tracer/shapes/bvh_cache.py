@@ -27,9 +27,9 @@ from .bvh import LEAF_BIT, WIDTH, Layout, layout
 from .bvh_build import LEAF_SIZE
 from ..jit import CORES
 
-FORMAT = 6            # bump when Layout or the build changes (2: SAH build, leaves of up to 4; 3: 4-wide rows;
+FORMAT = 7            # bump when Layout or the build changes (2: SAH build, leaves of up to 4; 3: 4-wide rows;
                       # 4: splits along any of the three axes; 5: the SAH's traversal cost 2; 6: 32 bins, of
-                      # every triangle below 65,536)
+                      # every triangle below 65,536; 7: the SAH's traversal cost 1)
 IN_MEMORY = 4         # layouts kept in this process
 ENV = "TRACER_BVH_CACHE"
 OFF = ("off", "0", "no", "none", "")
