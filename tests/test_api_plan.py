@@ -62,12 +62,14 @@ def test_a_scenes_triangles_and_texels_enter_the_estimate():
     import tracer
     from tracer.plan import TEXEL_BYTES, TRIANGLE_BYTES
     from tracer.rendering import scene_bytes
+    from tracer.sampling import GUIDE_DENSITY
 
     from .conftest import SCENES
 
     room = tracer.load_scene(SCENES / "environment_map.xml")
-    sky = room.envmap.image
-    assert scene_bytes(room) == room.triangle_count * TRIANGLE_BYTES + sky.shape[0] * sky.shape[1] * TEXEL_BYTES
+    sky = room.envmap.image      # its texels, and its sampling's guide tables (4 bytes per entry)
+    assert scene_bytes(room) == (room.triangle_count * TRIANGLE_BYTES
+                                 + sky.shape[0] * sky.shape[1] * (TEXEL_BYTES + 4 * GUIDE_DENSITY))
     textured = tracer.load_scene(SCENES / "bitmap.xml")
     assert scene_bytes(textured) > textured.triangle_count * TRIANGLE_BYTES    # the bitmap's texels
 

@@ -24,7 +24,7 @@ import pytest
 from scipy import stats
 
 from tracer import sampling
-from tracer.jit import BACKEND, Array3f, Float
+from tracer.jit import BACKEND, Array3f, Float, UInt32
 from validation.verdict.protocol import ALPHA   # family-wise false-positive rate of one comparison
 
 U = 2.0 ** -24
@@ -304,3 +304,58 @@ def test_render_streams_are_independent():
         counts, _ = np.histogram(x, 200, (0, 1))
         pvalues.append(st.chisquare(counts).pvalue)
     assert st.kstest(pvalues, "uniform").pvalue > 1e-3
+
+
+def _cdfs(rng: np.random.Generator) -> list[np.ndarray]:
+    """CDFs of every shape GuidedCDF meets: smooth and peaked (a bright texel among dark ones), with runs of
+    zero-probability entries (flat steps), one entry, and one whose last value falls short of 1 (a mesh's
+    summed areas, rounded)."""
+    peaked = rng.random(300) ** 8
+    peaked[[17, 150]] = 500.0
+    flat = rng.random(64)
+    flat[10:40] = 0.0
+    out = [np.cumsum(w) / np.sum(w) for w in (rng.random(1000), peaked, flat, np.ones(1))]
+    return out + [np.cumsum(np.full(50, 0.02)) * 0.999]
+
+
+def _binary_search(cdf: np.ndarray, u: Float) -> np.ndarray:
+    """dr.binary_search(0, n - 1, cdf[k] <= u) per lane (an int where the row has one entry)."""
+    table = Float(cdf)
+    k = dr.binary_search(0, len(cdf) - 1, lambda k: dr.gather(Float, table, k) <= u)
+    return np.broadcast_to(k.numpy() if hasattr(k, "numpy") else k, (dr.width(u),))
+
+
+@pytest.mark.parametrize("case", range(5))
+def test_guided_cdf_finds_what_a_binary_search_over_the_row_finds(case):
+    """GuidedCDF.search gives the index dr.binary_search(0, n - 1, cdf[k] <= u) gives, for every u, those at
+    and next to the CDF's values and its guide buckets' bounds included."""
+    rng = np.random.default_rng(case)
+    cdf = _cdfs(rng)[case].astype(np.float32)
+    guided = sampling.GuidedCDF(cdf)
+    edges = np.concatenate([cdf, np.arange(guided.m) / guided.m]).astype(np.float32)
+    u = np.concatenate([rng.random(20000), edges, np.nextafter(edges, 0), np.nextafter(edges, 1), [0.0]])
+    u = Float(np.clip(u, 0.0, np.nextafter(np.float32(1), 0)).astype(np.float32))
+    assert np.array_equal(guided.search(u).numpy(), _binary_search(cdf, u))
+
+
+def test_guided_cdf_rows_are_searched_apart():
+    """Rows of a 2-D table: each lane searches its own row, as a binary search over that row alone would."""
+    rng = np.random.default_rng(7)
+    rows = np.stack([np.cumsum(w) / np.sum(w) for w in rng.random((6, 40)) ** 4]).astype(np.float32)
+    guided = sampling.GuidedCDF(rows)
+    row = rng.integers(0, 6, 5000)
+    u = rng.random(5000).astype(np.float32)
+    expected = [np.minimum(np.searchsorted(rows[r], x, side="right"), 39) for r, x in zip(row, u)]
+    got = guided.search(Float(u), UInt32(row)).numpy()
+    assert np.array_equal(got, expected)
+
+
+def test_guided_cdf_search_fails_with_a_step_short():
+    """The test above can fail: with one step fewer than the widest bucket needs, some index is wrong."""
+    rng = np.random.default_rng(3)
+    cdf = _cdfs(rng)[1].astype(np.float32)
+    guided = sampling.GuidedCDF(cdf)
+    assert guided.steps > 1
+    guided.steps -= 1
+    u = Float(rng.random(200000).astype(np.float32))
+    assert not np.array_equal(guided.search(u).numpy(), _binary_search(cdf, u))

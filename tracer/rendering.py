@@ -18,6 +18,7 @@ from .geometry import SceneGeometry, goes_bounce_by_bounce
 from .shapes import MeshSet
 from .jit import BACKEND, PRECISION
 from .launch import seed_state
+from .sampling import GUIDE_DENSITY
 from .plan import INSTANCE_BYTES, TEXEL_BYTES, TRIANGLE_BYTES, Plan, available_memory, gib, plan_render
 from .scene import Scene, SceneError
 
@@ -179,15 +180,17 @@ def make_plan(scene: Scene, spp: int, estimator: PathEstimator | BranchingEstima
 
 def scene_bytes(scene: Scene) -> int:
     """tracer.plan's estimate of the memory the scene's arrays take: its mesh triangles (those of shapegroups
-    once, and per instance its rows: INSTANCE_BYTES) and texels."""
+    once, and per instance its rows: INSTANCE_BYTES), texels, and the environment map's guide tables
+    (sampling.GuidedCDF)."""
     textures = {id(t): t for b in scene.bsdfs for t in b.every_texture()}
     images = [t.image for t in textures.values() if getattr(t, "image", None) is not None]
     if scene.envmap is not None:
         images.append(scene.envmap.image)
     texels = sum(image.shape[0] * image.shape[1] for image in images)
     instances = sum(len(g.to_world) for g in scene.groups if g.meshes)
+    guides = scene.envmap.image[..., 0].size * 4 * GUIDE_DENSITY if scene.envmap is not None else 0
     return ((scene.triangle_count + scene.instanced_triangles[0]) * TRIANGLE_BYTES + instances * INSTANCE_BYTES
-            + texels * TEXEL_BYTES)
+            + texels * TEXEL_BYTES + guides)
 
 
 def pass_seed(seed: int, index: int) -> int:

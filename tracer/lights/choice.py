@@ -28,6 +28,7 @@ import drjit as dr
 import numpy as np
 
 from ..jit import Float, UInt32, opaque_f, opaque_u32
+from ..sampling import GuidedCDF
 from .constant import ConstantEnvironment
 from .directional import DirectionalLight
 from .envmap import LUMINANCE, EnvironmentMap
@@ -72,9 +73,9 @@ class LightChoice:
         if self._cdf is None:
             cdf = np.cumsum(self.weights) / self.total
             cdf[np.flatnonzero(self.weights)[-1]:] = 1.0    # u < 1 never reaches the trailing zero weights
-            self._cdf = Float(cdf.astype(np.float32))
+            self._cdf = GuidedCDF(cdf.astype(np.float32))
         # the first k with cdf[k] > u: a light of weight 0 spans an empty interval and is never chosen
-        return dr.binary_search(0, self.n - 1, lambda k: dr.gather(Float, self._cdf, k) <= u)
+        return self._cdf.search(u)
 
 
 def luminance(rgb) -> float:

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..imageio import ImageError, read_exr_rgb
 from ..jit import Array3f, Float, UInt32, gather_vec3, row_table
-from ..sampling import square_to_uniform_sphere
+from ..sampling import GuidedCDF, square_to_uniform_sphere
 
 PLUGINS = {"envmap": ("filename", "bitmap", "scale", "to_world", "mis_compensation", "sampling_weight")}
 ENVIRONMENT = True    # at most one environment emitter per scene
@@ -107,8 +107,7 @@ class EnvmapKernel:
         self.to_world, self.to_local = linear, np.linalg.inv(linear)
         dist = distribution(env.image)
         self.mix = dist.mix_uniform
-        self.row_cdf = Float(dist.row_cdf.astype(np.float32))
-        self.col_cdf = Float(dist.col_cdf.astype(np.float32).ravel())
+        self.rows, self.cols = GuidedCDF(dist.row_cdf.astype(np.float32)), GuidedCDF(dist.col_cdf.astype(np.float32))
         self.cell_p = Float(dist.cell_p.astype(np.float32).ravel())
 
     def _local(self, d: Array3f) -> Array3f:
@@ -149,14 +148,12 @@ class EnvmapKernel:
     def sample(self, u1: Float, u2: Float) -> Array3f:
         uniform = u1 < self.mix
         s = dr.select(uniform, u1 / self.mix, (u1 - self.mix) / (1.0 - self.mix)) if self.mix < 1 else u1
-        j = dr.binary_search(0, self.h - 1, lambda k: dr.gather(Float, self.row_cdf, k) <= s)
-        lo = dr.select(j > 0, dr.gather(Float, self.row_cdf, j - 1, j > 0), 0.0)
-        t = (Float(j) + dr.clip((s - lo) / (dr.gather(Float, self.row_cdf, j) - lo), 0.0, 1.0 - 2.0 ** -24)) / self.h
-        base = j * self.w
-        i = dr.binary_search(0, self.w - 1, lambda k: dr.gather(Float, self.col_cdf, base + k) <= u2)
-        lo = dr.select(i > 0, dr.gather(Float, self.col_cdf, base + i - 1, i > 0), 0.0)
-        u = (Float(i) + dr.clip((u2 - lo) / (dr.gather(Float, self.col_cdf, base + i) - lo), 0.0,
-                                1.0 - 2.0 ** -24)) / self.w
+        j = self.rows.search(s)
+        lo, hi = self.rows.below(j)
+        t = (Float(j) + dr.clip((s - lo) / (hi - lo), 0.0, 1.0 - 2.0 ** -24)) / self.h
+        i = self.cols.search(u2, j)
+        lo, hi = self.cols.below(i, j)
+        u = (Float(i) + dr.clip((u2 - lo) / (hi - lo), 0.0, 1.0 - 2.0 ** -24)) / self.w
         theta, phi = t * dr.pi, u * dr.two_pi
         sin_t, cos_t = dr.sincos(theta)
         sin_p, cos_p = dr.sincos(phi)

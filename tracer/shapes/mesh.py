@@ -20,7 +20,7 @@ from ..meshes import (MeshError, bounding_box, corner_blocks, cross_rows, length
 from ..serialized import read_serialized
 from ..jit import CORES, HOST_FLOAT, INF, Array3f, Bool, Float, UInt32, aligned_zeros, gather_row, gather_vec3, \
     host_array, row_buffer, row_table, vec3
-from ..sampling import square_to_uniform_triangle
+from ..sampling import GuidedCDF, square_to_uniform_triangle
 from .base import ShapeArgs, ShapeSet, exclude
 from .triangle import ray_triangle
 
@@ -205,7 +205,7 @@ class MeshSet(ShapeSet):
         self.corner_normals = host_array(Float, self._corner_normals()) if self.smooth else None   # read there only
         self.corner_uvs = None
         self.tangents = None
-        self._emitter_tables: dict[int, tuple[Float, Float]] = {}
+        self._emitter_tables: dict[int, tuple[GuidedCDF, Float]] = {}
 
     @staticmethod
     def uses_bvh(triangles: int, bvh_threshold: int = BVH_THRESHOLD) -> bool:
@@ -402,23 +402,22 @@ class MeshSet(ShapeSet):
         return (dr.select(is_tri, c[0] * b0 + c[2] * b1 + c[4] * b2, u),
                 dr.select(is_tri, c[1] * b0 + c[3] * b1 + c[5] * b2, v))
 
-    def _emitter_table(self, m: Mesh) -> tuple[Float, Float]:
+    def _emitter_table(self, m: Mesh) -> tuple[GuidedCDF, Float]:
         """An emitting mesh's cumulative triangle areas (normalised) and its triangles' corners, built on its
         first light sample and kept: every bounce of every launch samples it."""
         if id(m) not in self._emitter_tables:
             areas = m.triangle_areas
             # a mesh of no area emits nothing (its samples' density is infinite): any points will do
             cdf = np.cumsum(areas) / m.area if m.area > 0 else np.arange(1, len(areas) + 1) / len(areas)
-            self._emitter_tables[id(m)] = Float(cdf), row_table(m.vertices[m.faces])
+            self._emitter_tables[id(m)] = GuidedCDF(cdf), row_table(m.vertices[m.faces])
         return self._emitter_tables[id(m)]
 
     def sample(self, m: Mesh, lo: int, u1: Float, u2: Float, geo) -> tuple[Array3f, Array3f, UInt32]:
         """A triangle chosen by area, then a point uniform on it (u1 reused: rescaled within the chosen
         triangle's share); the normal is the shading normal on smooth meshes."""
         cdf, corners = self._emitter_table(m)
-        tri = dr.binary_search(0, dr.width(cdf) - 1, lambda i: dr.gather(Float, cdf, i) <= u1)
-        below = dr.select(tri > 0, dr.gather(Float, cdf, tri - 1, tri > 0), 0.0)
-        above = dr.gather(Float, cdf, tri)
+        tri = cdf.search(u1)
+        below, above = cdf.below(tri)
         u1 = dr.clip((u1 - below) / (above - below), 0.0, 1.0 - 2.0 ** -24)
         b1, b2 = square_to_uniform_triangle(u1, u2)
         prim = self.prim(lo - self.base) + tri
