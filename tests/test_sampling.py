@@ -359,3 +359,15 @@ def test_guided_cdf_search_fails_with_a_step_short():
     guided.steps -= 1
     u = Float(rng.random(200000).astype(np.float32))
     assert not np.array_equal(guided.search(u).numpy(), _binary_search(cdf, u))
+
+
+def test_guided_cdf_with_fewer_buckets_than_entries(monkeypatch):
+    """Past GUIDE_MAX buckets (a mesh of millions of emitting triangles) a bucket holds several entries; the
+    search still finds the binary search's index."""
+    monkeypatch.setattr(sampling, "GUIDE_MAX", 16)
+    rng = np.random.default_rng(11)
+    cdf = _cdfs(rng)[0].astype(np.float32)
+    guided = sampling.GuidedCDF(cdf)
+    assert guided.m == 16 and guided.steps > 5
+    u = Float(np.concatenate([rng.random(50000), cdf[:-1]]).astype(np.float32))
+    assert np.array_equal(guided.search(u).numpy(), _binary_search(cdf, u))

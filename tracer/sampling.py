@@ -7,6 +7,7 @@ from .jit import PCG32, Array3f, Float, UInt32, UInt64
 
 INV_PI = 1.0 / dr.pi
 GUIDE_DENSITY = 8    # guide-table entries per CDF entry (GuidedCDF)
+GUIDE_MAX = 1 << 22  # at most: u * m then rounds (float32) by under a quarter of an entry's bucket
 
 
 def square_to_cosine_hemisphere(u1: Float, u2: Float) -> Array3f:
@@ -103,19 +104,19 @@ def square_to_cosine_hemisphere_concentric(u1: Float, u2: Float) -> Array3f:
 class GuidedCDF:
     """Rows of n non-decreasing CDF values, inverted with a guide table per row (Chen and Asau, "On
     generating random variates from an empirical distribution", AIIE Transactions 6(2), 1974): entry i of a
-    row's table counts its CDF values at most i / m (m = GUIDE_DENSITY * n). A float u in [0, 1) lies within
-    a step of bucket b = floor(u m), so the index sought lies between the entries at b - 1 and b + 2, and a
-    binary search there takes as many steps as the widest such interval needs (`steps`, unrolled), never
-    more than one over the whole row. On mitsuba-data's museum.exr (512 x 256) an environment map's sample
-    (its row, then its column) takes 5 steps a search against 9 and 10: 37 against 45 ns a sample, one
-    thread; a loop of each lane's own steps took 31 ns there but cost the bounce kernels around it more.
-    The tables take 4 * GUIDE_DENSITY bytes per CDF value."""
+    row's table counts its CDF values at most i / m (m = GUIDE_DENSITY * n, at most GUIDE_MAX). A float u
+    in [0, 1) lies within a step of bucket b = floor(u m), so the index sought lies between the entries at
+    b - 1 and b + 2, and a binary search there takes as many steps as the widest such interval needs
+    (`steps`, unrolled), never more than one over the whole row. On mitsuba-data's museum.exr (512 x 256)
+    an environment map's sample (its row, then its column) takes 5 steps a search against 9 and 10: 37
+    against 45 ns a sample, one thread; a loop of each lane's own steps took 31 ns there but cost the
+    bounce kernels around it more. The tables take 4 * GUIDE_DENSITY bytes per CDF value."""
 
     def __init__(self, cdf: np.ndarray):
         """cdf: (n,) or (rows, n), its values as Float holds them (rounded to its precision)."""
         self.cdf = Float(np.ravel(cdf))
         held = np.atleast_2d(self.cdf.numpy().reshape(np.shape(cdf)))
-        self.n, self.m = held.shape[1], GUIDE_DENSITY * held.shape[1]
+        self.n, self.m = held.shape[1], min(GUIDE_DENSITY * held.shape[1], GUIDE_MAX)
         bounds = np.arange(self.m + 1) / self.m
         guide, widest = np.empty((len(held), self.m + 1), np.uint32), 1
         for row, out in zip(held, guide):      # a row at a time: searchsorted's int64 counts stay small
