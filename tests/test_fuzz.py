@@ -115,3 +115,18 @@ def test_pool_classifies_a_dying_or_silent_worker(tmp_path, behaviour, kind):
     outcomes = run_mutants(mutants, workers=1, timeout=3, worker_argv=[sys.executable, str(script)])
     assert [o.kind for o in outcomes] == [kind, "user error"]
     assert kind in FAILURES
+
+
+def test_a_mitsuba_that_ends_its_process_refuses_the_scene(monkeypatch, tmp_path):
+    """Mitsuba 3.9.1 ends the process on some truncated OpenEXR files (std::terminate, at a later load in the
+    same process): its loads run in a process of their own, whose end by a signal is a refusal, not the end of
+    the caller."""
+    from validation.suites import fuzz
+
+    scene = tmp_path / "s.xml"
+    scene.write_text('<scene version="3.0.0"/>')
+    assert fuzz.mitsuba_refusal(scene) == ""
+    monkeypatch.setattr(fuzz, "_REFUSAL", "import os, sys; print('what(): cut short', file=sys.stderr); os.abort()")
+    why = fuzz.mitsuba_refusal(scene)
+    assert why.startswith("Mitsuba ended its process (signal 6)") and "cut short" in why
+    assert fuzz.mitsuba_refuses(scene)

@@ -377,35 +377,32 @@ def unexplained(outcomes: list[Outcome]) -> list[Outcome]:
     return [o for o in outcomes if o.kind in FAILURES or (o.mitsuba and not deliberate(o))]
 
 
-def mitsuba_refusal(scene: Path) -> str:
-    """Mitsuba 3's refusal of a scene file, or '' where it loads it."""
-    from validation.verdict.mitsuba_render import mitsuba
+_REFUSAL = """
+import sys
+from validation.verdict.mitsuba_render import mitsuba
+try:
+    mitsuba().load_file(sys.argv[1])
+except Exception as e:
+    text = str(e).strip()
+    print(text.splitlines()[-1][-300:] if text else type(e).__name__)
+"""
 
-    mi = mitsuba()
-    try:
-        with _quiet_fd(2):
-            mi.load_file(str(scene))
-    except Exception as e:
-        return str(e).strip().splitlines()[-1][-300:] if str(e).strip() else type(e).__name__
-    return ""
+
+def mitsuba_refusal(scene: Path) -> str:
+    """Mitsuba 3's refusal of a scene file, or '' where it loads it. In a process of its own (its log on
+    that process's stderr): Mitsuba 3.9.1 ends the process (std::terminate) on some truncated OpenEXR files,
+    an EOFException thrown where it cannot be caught, often only at a later load in the same process; such an
+    end counts as a refusal."""
+    run = subprocess.run([sys.executable, "-c", _REFUSAL, str(scene)], capture_output=True, text=True, cwd=ROOT)
+    if run.returncode:
+        died = f"signal {-run.returncode}" if run.returncode < 0 else f"exit status {run.returncode}"
+        last = (run.stderr.strip().splitlines() or [""])[-1]
+        return f"Mitsuba ended its process ({died}) {last}"[:300]
+    return run.stdout.strip()
 
 
 def mitsuba_refuses(scene: Path) -> bool:
     return bool(mitsuba_refusal(scene))
-
-
-@contextlib.contextmanager
-def _quiet_fd(fd: int):
-    """Mitsuba's log goes to the process's descriptor `fd`: silenced for the duration."""
-    saved = os.dup(fd)
-    null = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(null, fd)
-    try:
-        yield
-    finally:
-        os.dup2(saved, fd)
-        os.close(saved)
-        os.close(null)
 
 
 def worker() -> int:
