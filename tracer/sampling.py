@@ -3,7 +3,7 @@ of tabulated CDFs."""
 import drjit as dr
 import numpy as np
 
-from .jit import PCG32, Array3f, Float, UInt32, UInt64
+from .jit import HOST_FLOAT, PCG32, Array3f, Float, UInt32, UInt64
 
 INV_PI = 1.0 / dr.pi
 GUIDE_DENSITY = 8    # guide-table entries per CDF entry (GuidedCDF)
@@ -113,9 +113,9 @@ class GuidedCDF:
     bounce kernels around it more. The tables take 4 * GUIDE_DENSITY bytes per CDF value."""
 
     def __init__(self, cdf: np.ndarray):
-        """cdf: (n,) or (rows, n), its values as Float holds them (rounded to its precision)."""
-        self.cdf = Float(np.ravel(cdf))
-        held = np.atleast_2d(self.cdf.numpy().reshape(np.shape(cdf)))
+        """cdf: (n,) or (rows, n), rounded to Float's precision."""
+        held = np.atleast_2d(np.asarray(cdf, HOST_FLOAT))
+        self.cdf = Float(held.ravel())
         self.n, self.m = held.shape[1], min(GUIDE_DENSITY * held.shape[1], GUIDE_MAX)
         bounds = np.arange(self.m + 1) / self.m
         guide, widest = np.empty((len(held), self.m + 1), np.uint32), 1
@@ -140,8 +140,11 @@ class GuidedCDF:
             lo, hi = dr.select(below, mid + 1, lo), dr.select(below, hi, mid)
         return lo
 
-    def below(self, k: UInt32, row: UInt32 | int = 0) -> tuple[Float, Float]:
-        """The CDF's values before and at index k of each lane's row (0 before the first)."""
+    def sample(self, u: Float, row: UInt32 | int = 0) -> tuple[UInt32, Float]:
+        """In each lane's row, the index `search` finds and u's place within its interval [cdf[k - 1],
+        cdf[k]) (cdf[-1] = 0), in [0, 1): a uniform number again, for the sample's next dimension."""
+        k = self.search(u, row)
         base = row * self.n
-        return (dr.select(k > 0, dr.gather(Float, self.cdf, base + k - 1, k > 0), 0.0),
-                dr.gather(Float, self.cdf, base + k))
+        lo = dr.select(k > 0, dr.gather(Float, self.cdf, base + k - 1, k > 0), 0.0)
+        hi = dr.gather(Float, self.cdf, base + k)
+        return k, dr.clip((u - lo) / (hi - lo), 0.0, 1.0 - 2.0 ** -24)

@@ -148,12 +148,9 @@ class EnvmapKernel:
     def sample(self, u1: Float, u2: Float) -> Array3f:
         uniform = u1 < self.mix
         s = dr.select(uniform, u1 / self.mix, (u1 - self.mix) / (1.0 - self.mix)) if self.mix < 1 else u1
-        j = self.rows.search(s)
-        lo, hi = self.rows.below(j)
-        t = (Float(j) + dr.clip((s - lo) / (hi - lo), 0.0, 1.0 - 2.0 ** -24)) / self.h
-        i = self.cols.search(u2, j)
-        lo, hi = self.cols.below(i, j)
-        u = (Float(i) + dr.clip((u2 - lo) / (hi - lo), 0.0, 1.0 - 2.0 ** -24)) / self.w
+        j, dt = self.rows.sample(s)
+        i, du = self.cols.sample(u2, j)
+        t, u = (Float(j) + dt) / self.h, (Float(i) + du) / self.w
         theta, phi = t * dr.pi, u * dr.two_pi
         sin_t, cos_t = dr.sincos(theta)
         sin_p, cos_p = dr.sincos(phi)

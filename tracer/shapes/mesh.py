@@ -416,9 +416,7 @@ class MeshSet(ShapeSet):
         """A triangle chosen by area, then a point uniform on it (u1 reused: rescaled within the chosen
         triangle's share); the normal is the shading normal on smooth meshes."""
         cdf, corners = self._emitter_table(m)
-        tri = cdf.search(u1)
-        below, above = cdf.below(tri)
-        u1 = dr.clip((u1 - below) / (above - below), 0.0, 1.0 - 2.0 ** -24)
+        tri, u1 = cdf.sample(u1)
         b1, b2 = square_to_uniform_triangle(u1, u2)
         prim = self.prim(lo - self.base) + tri
         v = [gather_vec3(corners, tri * 3 + c) for c in range(3)]
